@@ -1,0 +1,74 @@
+"""Helpers to run mitransient 1.3.1 (Mitsuba 3.9.1, llvm_ad_mono) from the validation
+scripts and tests.
+
+Import this module before anything imports mitsuba: `setup()` sets
+DRJIT_LIBLLVM_PATH (LLVM 19), the variant and the thread count, then imports
+mitransient.
+"""
+from __future__ import annotations
+
+import glob
+import os
+
+_MI = None
+
+
+def find_libllvm() -> str:
+    """Path of an LLVM >= 19 shared library for Dr.Jit (LLVM 14 is too old, 15/16 crash)."""
+    env = os.environ.get("DRJIT_LIBLLVM_PATH")
+    if env and os.path.exists(env):
+        return env
+    cands = sorted(glob.glob("/usr/lib/x86_64-linux-gnu/libLLVM.so.19*")) + sorted(
+        glob.glob("/usr/lib/x86_64-linux-gnu/libLLVM-19*.so*")
+    )
+    if not cands:
+        raise RuntimeError(
+            "No LLVM 19 found: apt-get install -y libllvm19 and set DRJIT_LIBLLVM_PATH"
+        )
+    return cands[0]
+
+
+def setup(threads: int = 2):
+    """Returns (mi, mitr) with variant llvm_ad_mono and `threads` worker threads."""
+    global _MI
+    if _MI is not None:
+        return _MI
+    os.environ["DRJIT_LIBLLVM_PATH"] = find_libllvm()
+    import drjit as dr
+    import mitsuba as mi
+
+    mi.set_variant("llvm_ad_mono")
+    dr.set_thread_count(threads)
+    mi.set_log_level(mi.LogLevel.Error)
+    import mitransient as mitr
+
+    _MI = (mi, mitr)
+    return _MI
+
+
+def to_numpy(transient) -> "np.ndarray":
+    """mitransient's transient tensor (sy, sx, T, 1) in llvm_ad_mono -> float32 (sy, sx, T).
+    Exhaustive captures give (sy, sx, ly, lx, T, 1) -> (sy, sx, ly, lx, T) (square grids only:
+    see notes/mitransient.md)."""
+    import numpy as np
+
+    a = np.array(transient, dtype=np.float32)
+    assert a.shape[-1] == 1, a.shape
+    return a[..., 0]
+
+
+def render_scene(scene, spp: int, seed: int = 0):
+    """Render a loaded scene; returns float32 (sy, sx, T)."""
+    mi, _ = setup()
+    steady, transient = mi.render(scene, spp=spp, seed=seed)
+    return to_numpy(transient)
+
+
+def load_xml(path: str, **params):
+    """mi.load_file with <default> overrides (values converted to str)."""
+    mi, _ = setup()
+    return mi.load_file(str(path), **{k: str(v) for k, v in params.items()})
+
+
+def render_xml(path: str, spp: int, seed: int = 0, **params):
+    return render_scene(load_xml(path, **params), spp=spp, seed=seed)

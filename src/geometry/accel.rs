@@ -1,0 +1,190 @@
+//! Ray queries against the whole scene: hidden triangles plus the relay wall (two
+//! triangles), in one obvhs CWBVH. Closest hit for continuing paths, occlusion for
+//! visibility `V(a, b)` between two surface points.
+//!
+//! Rays that start or end on a surface are shortened by `eps` (a fraction of the scene
+//! size) at both ends, so a surface does not shadow itself.
+
+use crate::geometry::sampling::AreaDistribution;
+use crate::scene::Scene;
+use glam::{Vec3, Vec3A};
+use obvhs::cwbvh::CwBvh;
+use obvhs::ray::{Ray, RayHit};
+use obvhs::triangle::Triangle;
+use obvhs::BvhBuildParams;
+use std::time::Duration;
+
+/// What a primitive belongs to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SurfaceKind {
+    /// Triangle `tri` of hidden object `object` (index into `Scene::objects`).
+    Hidden { object: u32, tri: u32 },
+    Wall,
+}
+
+/// Per-primitive data in BVH order: the triangle, its unit geometric normal, its kind.
+#[derive(Clone, Copy, Debug)]
+struct Prim {
+    tri: Triangle,
+    normal: Vec3,
+    kind: SurfaceKind,
+    /// Index into the flat list of hidden triangles (`u32::MAX` for the wall).
+    flat: u32,
+}
+
+/// A ray's closest hit.
+#[derive(Clone, Copy, Debug)]
+pub struct Hit {
+    /// Distance along the (unit) ray direction (m).
+    pub t: f32,
+    pub p: Vec3,
+    /// Unit geometric normal (orientation as the triangle's winding).
+    pub n: Vec3,
+    pub kind: SurfaceKind,
+    /// Flat hidden-triangle index, `u32::MAX` for the wall.
+    pub flat: u32,
+    /// Barycentrics (b1, b2) of `p` on the triangle (vertex 1 and 2 weights).
+    pub bary: [f32; 2],
+}
+
+/// The scene's surfaces ready for queries and sampling.
+pub struct SceneGeometry {
+    bvh: CwBvh,
+    prims: Vec<Prim>,
+    /// Hidden triangles by flat index: (object, local triangle).
+    pub flat_to_local: Vec<(u32, u32)>,
+    /// Area sampling of all hidden triangles (hidden-geometry sampling).
+    pub hidden_area: AreaDistribution,
+    /// Self-intersection offset (m).
+    pub eps: f32,
+    pub wall_normal: Vec3,
+}
+
+impl SceneGeometry {
+    pub fn build(scene: &Scene) -> SceneGeometry {
+        let mut tris = Vec::new();
+        let mut meta = Vec::new();
+        let mut flat_to_local = Vec::new();
+        let mut areas = Vec::new();
+        let mut extent = scene.wall.axis_u.length() + scene.wall.axis_v.length();
+        for (oi, o) in scene.objects.iter().enumerate() {
+            for t in 0..o.mesh.triangles.len() {
+                let [a, b, c] = o.mesh.triangle(t);
+                extent = extent.max(a.length()).max(b.length()).max(c.length());
+                let flat = flat_to_local.len() as u32;
+                flat_to_local.push((oi as u32, t as u32));
+                areas.push(o.mesh.area(t));
+                tris.push(tri(a, b, c));
+                meta.push((
+                    SurfaceKind::Hidden {
+                        object: oi as u32,
+                        tri: t as u32,
+                    },
+                    flat,
+                ));
+            }
+        }
+        let w = &scene.wall;
+        let c00 = w.center - 0.5 * w.axis_u - 0.5 * w.axis_v;
+        let c10 = c00 + w.axis_u;
+        let c11 = c10 + w.axis_v;
+        let c01 = c00 + w.axis_v;
+        for t in [tri(c00, c10, c11), tri(c00, c11, c01)] {
+            tris.push(t);
+            meta.push((SurfaceKind::Wall, u32::MAX));
+        }
+        let mut build_time = Duration::ZERO;
+        let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
+            &tris,
+            BvhBuildParams::medium_build(),
+            &mut build_time,
+        );
+        let wall_normal = w.normal();
+        let prims = bvh
+            .primitive_indices
+            .iter()
+            .map(|&i| {
+                let t = tris[i as usize];
+                let (kind, flat) = meta[i as usize];
+                let normal = if kind == SurfaceKind::Wall {
+                    wall_normal
+                } else {
+                    Vec3::from((t.v1 - t.v0).cross(t.v2 - t.v0).normalize())
+                };
+                Prim {
+                    tri: t,
+                    normal,
+                    kind,
+                    flat,
+                }
+            })
+            .collect();
+        SceneGeometry {
+            bvh,
+            prims,
+            flat_to_local,
+            hidden_area: AreaDistribution::new(&areas),
+            eps: 2e-6 * extent.max(1e-3) + 1e-6,
+            wall_normal,
+        }
+    }
+
+    /// Closest surface hit by the ray `origin + t * dir` (`dir` unit), `t > eps`.
+    pub fn intersect(&self, origin: Vec3, dir: Vec3) -> Option<Hit> {
+        let ray = Ray::new(origin.into(), dir.into(), self.eps, f32::INFINITY);
+        let mut hit = RayHit::none();
+        let prims = &self.prims;
+        if !self
+            .bvh
+            .ray_traverse(ray, &mut hit, |r, id| prims[id].tri.intersect(r))
+        {
+            return None;
+        }
+        let prim = &prims[hit.primitive_id as usize];
+        let p = origin + hit.t * dir;
+        Some(Hit {
+            t: hit.t,
+            p,
+            n: prim.normal,
+            kind: prim.kind,
+            flat: prim.flat,
+            bary: barycentric(&prim.tri, p),
+        })
+    }
+
+    /// True if the open segment between surface points `a` and `b` is blocked.
+    pub fn occluded(&self, a: Vec3, b: Vec3) -> bool {
+        let d = b - a;
+        let dist = d.length();
+        if dist <= 2.0 * self.eps {
+            return false;
+        }
+        let dir = d / dist;
+        let ray = Ray::new(a.into(), dir.into(), self.eps, dist - self.eps);
+        let prims = &self.prims;
+        !self
+            .bvh
+            .ray_traverse_miss(ray, |r, id| prims[id].tri.intersect(r))
+    }
+}
+
+fn tri(a: Vec3, b: Vec3, c: Vec3) -> Triangle {
+    Triangle {
+        v0: a.into(),
+        v1: b.into(),
+        v2: c.into(),
+    }
+}
+
+/// Barycentrics (b1, b2) of a point on the triangle's plane.
+fn barycentric(t: &Triangle, p: Vec3) -> [f32; 2] {
+    let e1 = t.v1 - t.v0;
+    let e2 = t.v2 - t.v0;
+    let q = Vec3A::from(p) - t.v0;
+    let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+    let (q1, q2) = (q.dot(e1), q.dot(e2));
+    let det = d11 * d22 - d12 * d12;
+    let b1 = (d22 * q1 - d12 * q2) / det;
+    let b2 = (d11 * q2 - d12 * q1) / det;
+    [b1, b2]
+}

@@ -1,0 +1,8 @@
+//! Geometry: hidden meshes and the relay wall in one BVH, the surfaces' shading data,
+//! and the sampling routines with their pdfs.
+
+pub mod accel;
+pub mod mesh;
+pub mod sampling;
+
+pub use accel::{Hit, SceneGeometry, SurfaceKind};

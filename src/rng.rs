@@ -1,0 +1,170 @@
+//! Counter-based random numbers: a sample's numbers are a pure function of
+//! `(seed, measurement, sample index, dimension)`, so any thread may render any sample
+//! and the adjoint pass can regenerate a path exactly (DESIGN §5).
+//!
+//! The first dimensions of each sample come from an Owen-scrambled Sobol' sequence
+//! (Burley 2020, "Practical hash-based Owen scrambling"): each 2-D pair is a (0,2)-
+//! sequence scrambled by a hash of the key and the pair's index, and the sample index
+//! is shuffled per pair, so pairs are stratified and decorrelated. Dimensions past
+//! [`SOBOL_PAIRS`] pairs fall back to independent hashed numbers.
+
+/// 2-D pairs per sample drawn from scrambled Sobol' points.
+pub const SOBOL_PAIRS: u32 = 16;
+
+/// A stateful view of one sample's stream of numbers in [0, 1).
+#[derive(Clone, Debug)]
+pub struct Sampler {
+    key: u64,
+    index: u32,
+    dim: u32,
+}
+
+impl Sampler {
+    /// The stream of sample `index` of measurement `stream` under `seed`.
+    pub fn new(seed: u64, stream: u64, index: u32) -> Self {
+        let key = mix64(seed ^ mix64(stream.wrapping_add(0x9E37_79B9_7F4A_7C15)));
+        Sampler { key, index, dim: 0 }
+    }
+
+    /// A stream of independent (unstratified) numbers: for statistical tests of the
+    /// sampling routines, which need i.i.d. input.
+    pub fn independent(seed: u64, stream: u64, index: u32) -> Self {
+        let mut s = Self::new(seed, stream, index);
+        s.dim = 2 * SOBOL_PAIRS;
+        s
+    }
+
+    /// Next pair of stratified numbers in [0, 1)².
+    pub fn next_2d(&mut self) -> [f32; 2] {
+        let d = self.dim;
+        self.dim += 2;
+        let pair = d / 2;
+        if pair < SOBOL_PAIRS {
+            let seed = (mix64(self.key ^ (pair as u64).wrapping_mul(0xD1B5_4A32_D192_ED03)) >> 32) as u32;
+            let i = nested_uniform_scramble(self.index, seed);
+            let x = nested_uniform_scramble(sobol_dim0(i), hash_u32(seed ^ 0x68BC_21EB));
+            let y = nested_uniform_scramble(sobol_dim1(i), hash_u32(seed ^ 0x02E5_BE93));
+            [to_unit(x), to_unit(y)]
+        } else {
+            [self.hashed(d), self.hashed(d + 1)]
+        }
+    }
+
+    /// Next single number in [0, 1) (consumes a pair's first coordinate).
+    pub fn next_1d(&mut self) -> f32 {
+        self.next_2d()[0]
+    }
+
+    fn hashed(&self, d: u32) -> f32 {
+        let h = mix64(self.key ^ mix64(((self.index as u64) << 32) | d as u64));
+        to_unit((h >> 32) as u32)
+    }
+}
+
+/// Maps 32 random bits to [0, 1) with 24 bits of precision (never returns 1).
+fn to_unit(x: u32) -> f32 {
+    (x >> 8) as f32 * (1.0 / 16_777_216.0)
+}
+
+/// Sobol' dimension 0 (van der Corput in base 2), as 32-bit fixed point.
+fn sobol_dim0(i: u32) -> u32 {
+    i.reverse_bits()
+}
+
+/// Sobol' dimension 1, as 32-bit fixed point: generator matrix of Pascal's triangle mod 2.
+fn sobol_dim1(mut i: u32) -> u32 {
+    let mut v: u32 = 1 << 31;
+    let mut x = 0;
+    while i != 0 {
+        if i & 1 != 0 {
+            x ^= v;
+        }
+        i >>= 1;
+        v ^= v >> 1;
+    }
+    x
+}
+
+/// Owen scrambling of a 32-bit fixed-point number by hashing (Laine–Karras style,
+/// with Burley's improved constants): every bit is flipped depending only on the bits
+/// above it, which preserves the (0,m,2)-net structure.
+fn nested_uniform_scramble(x: u32, seed: u32) -> u32 {
+    let mut x = x.reverse_bits();
+    x ^= x.wrapping_mul(0x3D20_ADEA);
+    x = x.wrapping_add(seed);
+    x = x.wrapping_mul((seed >> 16) | 1);
+    x ^= x.wrapping_mul(0x0552_6C56);
+    x ^= x.wrapping_mul(0x53A2_2864);
+    x.reverse_bits()
+}
+
+fn hash_u32(mut x: u32) -> u32 {
+    x ^= x >> 16;
+    x = x.wrapping_mul(0x7FEB_352D);
+    x ^= x >> 15;
+    x = x.wrapping_mul(0x846C_A68B);
+    x ^ (x >> 16)
+}
+
+/// A 64-bit finaliser with full avalanche (splitmix64's).
+pub fn mix64(mut z: u64) -> u64 {
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn same_key_same_numbers() {
+        let a: Vec<[f32; 2]> = (0..40).map(|_| Sampler::new(7, 3, 11).next_2d()).collect();
+        assert!(a.windows(2).all(|w| w[0] == w[1]));
+        let mut s = Sampler::new(7, 3, 11);
+        let mut t = Sampler::new(7, 4, 11);
+        assert_ne!(s.next_2d(), t.next_2d());
+    }
+
+    #[test]
+    fn pairs_are_stratified() {
+        // 256 samples of one stream: every one of the 16x16 strata holds exactly one
+        // point (a (0,8,2)-net), for the Sobol' pairs.
+        for pair in 0..3 {
+            let mut seen = vec![0u32; 256];
+            for i in 0..256 {
+                let mut s = Sampler::new(1, 42, i);
+                for _ in 0..pair {
+                    s.next_2d();
+                }
+                let [x, y] = s.next_2d();
+                assert!((0.0..1.0).contains(&x) && (0.0..1.0).contains(&y));
+                seen[(y * 16.0) as usize * 16 + (x * 16.0) as usize] += 1;
+            }
+            assert!(seen.iter().all(|&c| c == 1), "pair {pair}: {seen:?}");
+        }
+    }
+
+    #[test]
+    fn mean_and_variance_uniform() {
+        let n = 20000;
+        let mut sum = [0.0f64; 4];
+        for i in 0..n {
+            let mut s = Sampler::new(5, 9, i);
+            for k in 0..(SOBOL_PAIRS + 2) {
+                let [x, _] = s.next_2d();
+                if k == 0 || k == SOBOL_PAIRS + 1 {
+                    let j = if k == 0 { 0 } else { 2 };
+                    sum[j] += x as f64;
+                    sum[j + 1] += (x as f64) * (x as f64);
+                }
+            }
+        }
+        for j in [0, 2] {
+            let m = sum[j] / n as f64;
+            let v = sum[j + 1] / n as f64 - m * m;
+            assert!((m - 0.5).abs() < 0.01, "mean {m}");
+            assert!((v - 1.0 / 12.0).abs() < 0.005, "var {v}");
+        }
+    }
+}

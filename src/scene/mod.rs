@@ -1,0 +1,421 @@
+//! The scene: relay wall, laser, detector, scan grid, film, hidden meshes and render
+//! settings (DESIGN §1–2).
+//!
+//! Everything here is in world space, metres, with time as optical path length (OPL).
+//! Two readers build a [`Scene`]: our TOML format ([`toml_format`], documented in
+//! `scenes/README.md`) and the subset of Mitsuba XML that mitransient users write
+//! ([`mitsuba_xml`]). Both end in [`Scene::validate`], so the renderers can trust what
+//! they get: finite numbers, positive sizes, a laser and a detector in front of the wall.
+
+pub mod default;
+pub mod mitsuba_xml;
+pub mod toml_format;
+
+use crate::error::{Error, Result};
+use crate::geometry::mesh::TriMesh;
+use glam::Vec3;
+use std::path::Path;
+
+/// Which wall points the laser and the detector look at (mitransient's `capture_type`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CaptureType {
+    /// One laser point (`Laser::target`), a grid of sensor points.
+    Single,
+    /// Laser point = sensor point, for every grid point.
+    Confocal,
+    /// Every grid point as laser point x every grid point as sensor point.
+    Exhaustive,
+}
+
+impl CaptureType {
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "single" => Some(Self::Single),
+            "confocal" => Some(Self::Confocal),
+            "exhaustive" => Some(Self::Exhaustive),
+            _ => None,
+        }
+    }
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Single => "single",
+            Self::Confocal => "confocal",
+            Self::Exhaustive => "exhaustive",
+        }
+    }
+}
+
+/// Light-transport model (DESIGN §3); the same names in the CLI, scene files and Python.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Model {
+    /// Deterministic per-triangle three-bounce model (rung 1).
+    Tri3,
+    /// Monte Carlo three-bounce with hidden-geometry area sampling (rung 2).
+    Mc3,
+    /// Multi-bounce path tracing with laser / hidden-geometry / BSDF sampling and MIS (rung 3).
+    Path,
+    /// The cheapest model accurate enough for the scene.
+    Auto,
+}
+
+impl Model {
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "tri3" => Some(Self::Tri3),
+            "mc3" => Some(Self::Mc3),
+            "path" => Some(Self::Path),
+            "auto" => Some(Self::Auto),
+            _ => None,
+        }
+    }
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Tri3 => "tri3",
+            Self::Mc3 => "mc3",
+            Self::Path => "path",
+            Self::Auto => "auto",
+        }
+    }
+}
+
+/// The visible diffuse relay wall: a rectangle `center + s * axis_u + t * axis_v`,
+/// `s, t ∈ [-1/2, 1/2]`. Its front (the side the hidden scene is on) is
+/// `axis_u × axis_v`. y-tal's convention puts it at `z = 0` with normal `+z`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RelayWall {
+    pub center: Vec3,
+    /// Full edge vector along the scan's x direction (m).
+    pub axis_u: Vec3,
+    /// Full edge vector along the scan's y direction (m).
+    pub axis_v: Vec3,
+    /// Lambertian albedo ρ_w in [0, 1].
+    pub albedo: f32,
+}
+
+impl RelayWall {
+    pub fn normal(&self) -> Vec3 {
+        self.axis_u.cross(self.axis_v).normalize()
+    }
+    /// Signed distance of `p` in front of the wall plane.
+    pub fn height_above(&self, p: Vec3) -> f32 {
+        (p - self.center).dot(self.normal())
+    }
+}
+
+/// How much light the laser delivers to its wall spot.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LaserEmission {
+    /// Power delivered to the spot, whatever the spot's position (W).
+    Power(f32),
+    /// mitransient's `projector`: the spot receives `π E0 cosθ_l / |x_e - x_l|²`
+    /// (DESIGN §2), whatever `fov`. `fov` (degrees) only sets the footprint.
+    Irradiance { irradiance: f32, fov_deg: f32 },
+}
+
+/// The laser: where it stands, the wall point it aims at (single capture), its emission.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Laser {
+    pub origin: Vec3,
+    /// Wall point hit in single capture (m).
+    pub target: Vec3,
+    pub emission: LaserEmission,
+    /// Radius of the lit spot on the wall (m). 0 = a point (the usual NLOS idealisation);
+    /// > 0 makes the spot a uniformly lit disk, which BSDF-sampled paths can hit, so the
+    /// renderer works with laser sampling switched off.
+    pub spot_radius: f32,
+}
+
+impl Laser {
+    /// Power `P(x_l)` delivered to a wall spot at `x_l` with wall normal `n_w` (W).
+    pub fn power_at(&self, x_l: Vec3, n_w: Vec3) -> f32 {
+        match self.emission {
+            LaserEmission::Power(p) => p,
+            LaserEmission::Irradiance { irradiance, .. } => {
+                let d = self.origin - x_l;
+                let d2 = d.length_squared();
+                let cos_l = n_w.dot(d) / d2.sqrt();
+                std::f32::consts::PI * irradiance * cos_l.max(0.0) / d2
+            }
+        }
+    }
+}
+
+/// The time-resolved detector (SPAD); it records radiance leaving the wall toward it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Detector {
+    pub origin: Vec3,
+}
+
+/// Scan points at the pixel centres of a rectangle on the wall (mitransient's
+/// `nlos_capture_meter`): point `(ix, iy)` is
+/// `center + ((ix + ½)/nx - ½) axis_u + ((iy + ½)/ny - ½) axis_v`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScanGrid {
+    pub nx: u32,
+    pub ny: u32,
+    pub center: Vec3,
+    pub axis_u: Vec3,
+    pub axis_v: Vec3,
+}
+
+impl ScanGrid {
+    pub fn len(&self) -> usize {
+        self.nx as usize * self.ny as usize
+    }
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Wall point of scan index `i = iy * nx + ix` (row-major, matching `(sy, sx, T)`).
+    pub fn point(&self, i: usize) -> Vec3 {
+        let ix = (i % self.nx as usize) as f32;
+        let iy = (i / self.nx as usize) as f32;
+        let s = (ix + 0.5) / self.nx as f32 - 0.5;
+        let t = (iy + 0.5) / self.ny as f32 - 0.5;
+        self.center + s * self.axis_u + t * self.axis_v
+    }
+}
+
+/// Temporal response `k(τ)` of the detector (DESIGN §4).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum KernelSpec {
+    /// A histogram: a path lands in the bin that holds its OPL (mitransient's default).
+    Box,
+    /// Gaussian jitter with standard deviation `sigma_opl` (m of OPL), integrated exactly
+    /// over each bin.
+    Gaussian { sigma_opl: f32 },
+}
+
+/// The transient film (mitransient's `transient_hdr_film`): bin `b` holds OPL in
+/// `[start_opl + b * bin_width_opl, start_opl + (b + 1) * bin_width_opl)`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FilmSpec {
+    pub temporal_bins: u32,
+    pub bin_width_opl: f32,
+    pub start_opl: f32,
+    pub kernel: KernelSpec,
+}
+
+/// A hidden Lambertian object: a world-space triangle mesh and its albedo.
+#[derive(Clone, Debug)]
+pub struct HiddenObject {
+    /// Name used in messages and outputs (the file stem or the scene's `name`).
+    pub name: String,
+    pub mesh: TriMesh,
+    /// Albedo ρ in [0, 1], used where the mesh has no per-vertex albedo.
+    pub albedo: f32,
+    /// Reflect on both sides. Mitsuba's `diffuse` is one-sided (black from the back);
+    /// the default is one-sided to match it.
+    pub two_sided: bool,
+}
+
+/// Which sampling techniques the Monte Carlo estimators use (the seed paper's ablation).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Techniques {
+    /// Next-event estimation to the laser spot (mitransient `nlos_laser_sampling`).
+    pub laser_sampling: bool,
+    /// Area sampling of hidden surfaces (mitransient `nlos_hidden_geometry_sampling`).
+    pub hidden_geometry_sampling: bool,
+    /// Cosine-weighted (BSDF) sampling of the next direction.
+    pub bsdf_sampling: bool,
+}
+
+/// Render settings: sample count, depth, seed, model, techniques, bounce filter.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderSettings {
+    pub spp: u32,
+    /// Longest path, counted in bounces: 3 = laser spot, one hidden point, sensor point.
+    /// `u32::MAX` means unbounded (mitransient `max_depth = -1`).
+    pub max_bounces: u32,
+    /// Keep only paths with exactly this many bounces (mitransient's `filter_bounces`,
+    /// converted to our count when a Mitsuba scene is imported).
+    pub filter_bounces: Option<u32>,
+    /// Drop paths that never leave the wall (laser spot straight to the sensor point).
+    pub discard_direct_paths: bool,
+    /// Russian roulette starts after this many bounces.
+    pub rr_bounces: u32,
+    pub seed: u64,
+    pub model: Model,
+    pub techniques: Techniques,
+}
+
+/// A complete NLOS scene, validated.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    pub wall: RelayWall,
+    pub laser: Laser,
+    pub detector: Detector,
+    pub scan: ScanGrid,
+    pub capture: CaptureType,
+    pub film: FilmSpec,
+    /// Add laser→`x_l` and `x_s`→detector to each path's OPL (mitransient's
+    /// `account_first_and_last_bounces`; default false).
+    pub account_first_and_last_bounces: bool,
+    pub objects: Vec<HiddenObject>,
+    pub render: RenderSettings,
+    /// Things the readers fixed or ignored on the way (degenerate triangles dropped, …);
+    /// the CLI prints them.
+    pub warnings: Vec<String>,
+}
+
+impl Scene {
+    /// Loads a scene file, choosing the reader by extension (`.toml` or `.xml`).
+    pub fn load(path: &Path) -> Result<Scene> {
+        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+        match ext.to_ascii_lowercase().as_str() {
+            "toml" => toml_format::load(path),
+            "xml" => mitsuba_xml::load(path),
+            _ => Err(Error::scene(
+                path,
+                "unknown scene format: the extension must be .toml (Umbra) or .xml (Mitsuba)",
+            )),
+        }
+    }
+
+    /// Number of (laser point, sensor point) pairs the capture measures.
+    pub fn num_measurements(&self) -> usize {
+        match self.capture {
+            CaptureType::Single | CaptureType::Confocal => self.scan.len(),
+            CaptureType::Exhaustive => self.scan.len() * self.scan.len(),
+        }
+    }
+
+    /// Laser and sensor wall points of measurement `m`, in the output's row-major order
+    /// (`(sy, sx)` or `(ly, lx, sy, sx)`).
+    pub fn measurement_points(&self, m: usize) -> (Vec3, Vec3) {
+        match self.capture {
+            CaptureType::Single => (self.laser.target, self.scan.point(m)),
+            CaptureType::Confocal => {
+                let p = self.scan.point(m);
+                (p, p)
+            }
+            CaptureType::Exhaustive => {
+                let n = self.scan.len();
+                (self.scan.point(m / n), self.scan.point(m % n))
+            }
+        }
+    }
+
+    /// Output array shape in mitransient's layout.
+    pub fn output_shape(&self) -> Vec<usize> {
+        let (sy, sx, t) = (
+            self.scan.ny as usize,
+            self.scan.nx as usize,
+            self.film.temporal_bins as usize,
+        );
+        match self.capture {
+            CaptureType::Exhaustive => vec![sy, sx, sy, sx, t],
+            _ => vec![sy, sx, t],
+        }
+    }
+
+    pub fn total_hidden_triangles(&self) -> usize {
+        self.objects.iter().map(|o| o.mesh.triangles.len()).sum()
+    }
+
+    /// Checks every invariant the renderers rely on; `origin` names the file in messages.
+    pub fn validate(&self, origin: &Path) -> Result<()> {
+        let err = |field: &str, msg: String| Err(Error::field(origin, field, msg));
+        let finite3 = |v: Vec3| v.is_finite();
+        for (name, v) in [
+            ("wall.center", self.wall.center),
+            ("wall.axis_u", self.wall.axis_u),
+            ("wall.axis_v", self.wall.axis_v),
+            ("laser.origin", self.laser.origin),
+            ("laser.target", self.laser.target),
+            ("detector.origin", self.detector.origin),
+            ("scan.center", self.scan.center),
+            ("scan.axis_u", self.scan.axis_u),
+            ("scan.axis_v", self.scan.axis_v),
+        ] {
+            if !finite3(v) {
+                return err(name, format!("must be finite, got {v}"));
+            }
+        }
+        let area = self.wall.axis_u.cross(self.wall.axis_v).length();
+        if area.is_nan() || area <= 1e-12 {
+            return err("wall.size", "the relay wall has zero area".into());
+        }
+        if !(0.0..=1.0).contains(&self.wall.albedo) {
+            return err("wall.albedo", format!("must be in [0, 1], got {}", self.wall.albedo));
+        }
+        if self.scan.nx == 0 || self.scan.ny == 0 {
+            return err("scan.resolution", "must be at least 1 x 1".into());
+        }
+        let n_w = self.wall.normal();
+        if self.wall.height_above(self.laser.origin) <= 0.0 {
+            return err(
+                "laser.origin",
+                "the laser is behind (or on) the relay wall: it must be on the side the wall's normal points to".into(),
+            );
+        }
+        if self.wall.height_above(self.detector.origin) <= 0.0 {
+            return err(
+                "detector.origin",
+                "the detector is behind (or on) the relay wall".into(),
+            );
+        }
+        let on_plane = |p: Vec3| (p - self.wall.center).dot(n_w).abs() < 1e-4;
+        if self.capture == CaptureType::Single && !on_plane(self.laser.target) {
+            return err(
+                "laser.target",
+                format!("the laser target {} is not on the relay wall plane", self.laser.target),
+            );
+        }
+        if !on_plane(self.scan.center)
+            || self.scan.axis_u.dot(n_w).abs() > 1e-4
+            || self.scan.axis_v.dot(n_w).abs() > 1e-4
+        {
+            return err("scan", "the scan rectangle must lie on the relay wall plane".into());
+        }
+        match self.laser.emission {
+            LaserEmission::Power(p) if !(p.is_finite() && p >= 0.0) => {
+                return err("laser.power", format!("must be finite and >= 0, got {p}"))
+            }
+            LaserEmission::Irradiance { irradiance, fov_deg }
+                if !(irradiance.is_finite() && irradiance >= 0.0 && fov_deg.is_finite()) =>
+            {
+                return err("laser.irradiance", format!("must be finite and >= 0, got {irradiance}"))
+            }
+            _ => {}
+        }
+        if !(self.laser.spot_radius.is_finite() && self.laser.spot_radius >= 0.0) {
+            return err("laser.spot_radius", "must be finite and >= 0".into());
+        }
+        let f = &self.film;
+        if f.temporal_bins == 0 {
+            return err("film.temporal_bins", "must be at least 1".into());
+        }
+        if !(f.bin_width_opl.is_finite() && f.bin_width_opl > 0.0) {
+            return err("film.bin_width_opl", format!("must be > 0, got {}", f.bin_width_opl));
+        }
+        if !f.start_opl.is_finite() {
+            return err("film.start_opl", "must be finite".into());
+        }
+        if let KernelSpec::Gaussian { sigma_opl } = f.kernel {
+            if !(sigma_opl.is_finite() && sigma_opl > 0.0) {
+                return err("film.sigma_opl", format!("must be > 0, got {sigma_opl}"));
+            }
+        }
+        for (i, o) in self.objects.iter().enumerate() {
+            if !(0.0..=1.0).contains(&o.albedo) {
+                return err(&format!("objects[{i}].albedo"), format!("must be in [0, 1], got {}", o.albedo));
+            }
+            if let Some(bad) = o.mesh.positions.iter().position(|p| !p.is_finite()) {
+                return err(&format!("objects[{i}] ({})", o.name), format!("vertex {bad} is not finite"));
+            }
+            if let Some(a) = &o.mesh.vertex_albedo {
+                if a.iter().any(|v| !(0.0..=1.0).contains(v)) {
+                    return err(&format!("objects[{i}].vertex_albedo"), "must be in [0, 1]".into());
+                }
+            }
+        }
+        let r = &self.render;
+        if r.spp == 0 {
+            return err("render.spp", "must be at least 1".into());
+        }
+        if r.max_bounces < 3 {
+            return err("render.max_depth", "NLOS paths need at least 3 bounces".into());
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,420 @@
+//! Umbra's own scene format (TOML), documented field by field in `scenes/README.md`.
+//!
+//! Unknown fields are errors (a typo must not silently fall back to a default), every
+//! error names the file and the field or line, and relative OBJ paths are resolved
+//! against the scene file's folder.
+
+use super::{
+    CaptureType, Detector, FilmSpec, HiddenObject, KernelSpec, Laser, LaserEmission, Model,
+    RelayWall, RenderSettings, ScanGrid, Scene, Techniques,
+};
+use crate::error::{Error, Result};
+use crate::geometry::mesh::TriMesh;
+use glam::{Affine3A, Mat4, Quat, Vec3};
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct File {
+    #[serde(default = "default_capture")]
+    capture_type: String,
+    #[serde(default)]
+    account_first_and_last_bounces: bool,
+    wall: WallT,
+    laser: LaserT,
+    detector: Option<DetectorT>,
+    scan: ScanT,
+    film: FilmT,
+    #[serde(default)]
+    objects: Vec<ObjectT>,
+    #[serde(default)]
+    render: RenderT,
+}
+
+fn default_capture() -> String {
+    "confocal".into()
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct WallT {
+    #[serde(default)]
+    center: [f32; 3],
+    size: [f32; 2],
+    #[serde(default = "plus_z")]
+    normal: [f32; 3],
+    #[serde(default = "plus_y")]
+    up: [f32; 3],
+    #[serde(default = "one")]
+    albedo: f32,
+}
+
+fn plus_z() -> [f32; 3] {
+    [0.0, 0.0, 1.0]
+}
+fn plus_y() -> [f32; 3] {
+    [0.0, 1.0, 0.0]
+}
+fn one() -> f32 {
+    1.0
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct LaserT {
+    origin: [f32; 3],
+    target: Option<[f32; 3]>,
+    power: Option<f32>,
+    irradiance: Option<f32>,
+    #[serde(default)]
+    fov: f32,
+    #[serde(default)]
+    spot_radius: f32,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DetectorT {
+    origin: [f32; 3],
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ScanT {
+    resolution: [u32; 2],
+    center: Option<[f32; 3]>,
+    size: Option<[f32; 2]>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FilmT {
+    temporal_bins: i64,
+    bin_width_opl: f32,
+    #[serde(default)]
+    start_opl: f32,
+    #[serde(default = "box_kernel")]
+    kernel: String,
+    sigma_opl: Option<f32>,
+}
+
+fn box_kernel() -> String {
+    "box".into()
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ObjectT {
+    file: String,
+    name: Option<String>,
+    #[serde(default = "one")]
+    albedo: f32,
+    #[serde(default)]
+    two_sided: bool,
+    #[serde(default)]
+    transform: TransformT,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct TransformT {
+    scale: Option<ScaleT>,
+    #[serde(default)]
+    rotate: Vec<RotateT>,
+    translate: Option<[f32; 3]>,
+    matrix: Option<[[f32; 4]; 4]>,
+}
+
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum ScaleT {
+    Uniform(f32),
+    PerAxis([f32; 3]),
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RotateT {
+    axis: [f32; 3],
+    /// Degrees.
+    angle: f32,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RenderT {
+    #[serde(default = "default_model")]
+    model: String,
+    #[serde(default = "default_spp")]
+    spp: u32,
+    #[serde(default = "default_max_bounces")]
+    max_bounces: i64,
+    filter_bounces: Option<u32>,
+    #[serde(default)]
+    discard_direct_paths: bool,
+    #[serde(default = "default_rr")]
+    rr_bounces: u32,
+    #[serde(default)]
+    seed: u64,
+    #[serde(default = "yes")]
+    laser_sampling: bool,
+    #[serde(default = "yes")]
+    hidden_geometry_sampling: bool,
+    #[serde(default = "yes")]
+    bsdf_sampling: bool,
+}
+
+impl Default for RenderT {
+    fn default() -> Self {
+        toml::from_str("").expect("defaults")
+    }
+}
+
+fn default_model() -> String {
+    "path".into()
+}
+fn default_spp() -> u32 {
+    64
+}
+fn default_max_bounces() -> i64 {
+    -1
+}
+fn default_rr() -> u32 {
+    5
+}
+fn yes() -> bool {
+    true
+}
+
+/// Reads a TOML scene from disk.
+pub fn load(path: &Path) -> Result<Scene> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    parse(&text, path, &|file| {
+        let p = base.join(file);
+        TriMesh::load_obj(&p)
+    })
+}
+
+/// Parses TOML scene text. `origin` names it in errors; `load_mesh` resolves an
+/// object's `file` (from disk, or from memory for the built-in scene).
+pub fn parse(
+    text: &str,
+    origin: &Path,
+    load_mesh: &dyn Fn(&str) -> Result<TriMesh>,
+) -> Result<Scene> {
+    let f: File = toml::from_str(text).map_err(|e| {
+        let line = e
+            .span()
+            .map(|s| text[..s.start.min(text.len())].lines().count().max(1))
+            .unwrap_or(0);
+        Error::line(origin, line, e.message().to_string())
+    })?;
+    let field = |name: &str, msg: String| Error::field(origin, name, msg);
+
+    let capture = CaptureType::parse(&f.capture_type).ok_or_else(|| {
+        field(
+            "capture_type",
+            format!("'{}' is not one of single, confocal, exhaustive", f.capture_type),
+        )
+    })?;
+
+    let normal = v3(f.wall.normal);
+    let up = v3(f.wall.up);
+    if !(normal.is_finite() && up.is_finite()) || normal.length() < 1e-6 {
+        return Err(field("wall.normal", "must be a finite non-zero vector".into()));
+    }
+    let normal = normal.normalize();
+    let e_u = up.cross(normal);
+    if e_u.length() < 1e-6 {
+        return Err(field("wall.up", "must not be parallel to wall.normal".into()));
+    }
+    let e_u = e_u.normalize();
+    let e_v = normal.cross(e_u);
+    let wall = RelayWall {
+        center: v3(f.wall.center),
+        axis_u: f.wall.size[0] * e_u,
+        axis_v: f.wall.size[1] * e_v,
+        albedo: f.wall.albedo,
+    };
+    if !(f.wall.size[0] > 0.0 && f.wall.size[1] > 0.0) {
+        return Err(field("wall.size", format!("must be positive, got {:?}", f.wall.size)));
+    }
+
+    let emission = match (f.laser.power, f.laser.irradiance) {
+        (Some(p), None) => LaserEmission::Power(p),
+        (None, Some(e)) => LaserEmission::Irradiance {
+            irradiance: e,
+            fov_deg: f.laser.fov,
+        },
+        (None, None) => LaserEmission::Power(1.0),
+        (Some(_), Some(_)) => {
+            return Err(field("laser", "give either power or irradiance, not both".into()))
+        }
+    };
+    let laser = Laser {
+        origin: v3(f.laser.origin),
+        target: f.laser.target.map(v3).unwrap_or(wall.center),
+        emission,
+        spot_radius: f.laser.spot_radius,
+    };
+    let detector = Detector {
+        origin: f.detector.map(|d| v3(d.origin)).unwrap_or(laser.origin),
+    };
+    let scan_size = f.scan.size.unwrap_or(f.wall.size);
+    if !(scan_size[0] > 0.0 && scan_size[1] > 0.0) {
+        return Err(field("scan.size", format!("must be positive, got {scan_size:?}")));
+    }
+    let scan = ScanGrid {
+        nx: f.scan.resolution[0],
+        ny: f.scan.resolution[1],
+        center: f.scan.center.map(v3).unwrap_or(wall.center),
+        axis_u: scan_size[0] * e_u,
+        axis_v: scan_size[1] * e_v,
+    };
+
+    if f.film.temporal_bins <= 0 || f.film.temporal_bins > u32::MAX as i64 {
+        return Err(field(
+            "film.temporal_bins",
+            format!("must be a positive count, got {}", f.film.temporal_bins),
+        ));
+    }
+    let kernel = match (f.film.kernel.as_str(), f.film.sigma_opl) {
+        ("box", None) => KernelSpec::Box,
+        ("box", Some(_)) => {
+            return Err(field("film.sigma_opl", "only used with kernel = \"gaussian\"".into()))
+        }
+        ("gaussian", Some(s)) => KernelSpec::Gaussian { sigma_opl: s },
+        ("gaussian", None) => {
+            return Err(field("film.sigma_opl", "kernel = \"gaussian\" needs sigma_opl (m)".into()))
+        }
+        (k, _) => {
+            return Err(field(
+                "film.kernel",
+                format!("'{k}' is not one of box, gaussian"),
+            ))
+        }
+    };
+    let film = FilmSpec {
+        temporal_bins: f.film.temporal_bins as u32,
+        bin_width_opl: f.film.bin_width_opl,
+        start_opl: f.film.start_opl,
+        kernel,
+    };
+
+    let mut warnings = Vec::new();
+    let mut objects = Vec::new();
+    for (i, o) in f.objects.iter().enumerate() {
+        let xf = transform(&o.transform)
+            .map_err(|m| field(&format!("objects[{i}].transform"), m))?;
+        let mut mesh = load_mesh(&o.file)?;
+        mesh.transform(&xf);
+        let dropped = mesh.drop_degenerate();
+        let name = o.name.clone().unwrap_or_else(|| {
+            PathBuf::from(&o.file)
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| format!("object{i}"))
+        });
+        if dropped > 0 {
+            warnings.push(format!(
+                "{}: objects[{i}] ({name}): dropped {dropped} degenerate triangle(s)",
+                origin.display()
+            ));
+        }
+        if mesh.triangles.is_empty() {
+            return Err(field(&format!("objects[{i}]"), format!("{name} has no non-degenerate triangles")));
+        }
+        objects.push(HiddenObject {
+            name,
+            mesh,
+            albedo: o.albedo,
+            two_sided: o.two_sided,
+        });
+    }
+
+    let r = &f.render;
+    let model = Model::parse(&r.model)
+        .ok_or_else(|| field("render.model", format!("'{}' is not one of tri3, mc3, path, auto", r.model)))?;
+    let max_bounces = match r.max_bounces {
+        -1 => u32::MAX,
+        n if n >= 3 && n <= u32::MAX as i64 => n as u32,
+        n => return Err(field("render.max_bounces", format!("must be -1 (unbounded) or >= 3, got {n}"))),
+    };
+    let render = RenderSettings {
+        spp: r.spp,
+        max_bounces,
+        filter_bounces: r.filter_bounces,
+        discard_direct_paths: r.discard_direct_paths,
+        rr_bounces: r.rr_bounces,
+        seed: r.seed,
+        model,
+        techniques: Techniques {
+            laser_sampling: r.laser_sampling,
+            hidden_geometry_sampling: r.hidden_geometry_sampling,
+            bsdf_sampling: r.bsdf_sampling,
+        },
+    };
+
+    let scene = Scene {
+        wall,
+        laser,
+        detector,
+        scan,
+        capture,
+        film,
+        account_first_and_last_bounces: f.account_first_and_last_bounces,
+        objects,
+        render,
+        warnings,
+    };
+    scene.validate(origin)?;
+    Ok(scene)
+}
+
+fn v3(a: [f32; 3]) -> Vec3 {
+    Vec3::from_array(a)
+}
+
+/// `matrix` alone, or scale, then rotations in order, then translation.
+fn transform(t: &TransformT) -> std::result::Result<Affine3A, String> {
+    if let Some(m) = t.matrix {
+        if t.scale.is_some() || !t.rotate.is_empty() || t.translate.is_some() {
+            return Err("matrix excludes scale, rotate and translate".into());
+        }
+        // Row-major in the file, as written on paper.
+        let m = Mat4::from_cols_array_2d(&m).transpose();
+        if !m.is_finite() {
+            return Err("matrix has a non-finite entry".into());
+        }
+        if m.row(3) != glam::Vec4::new(0.0, 0.0, 0.0, 1.0) {
+            return Err("matrix must be affine (last row 0 0 0 1)".into());
+        }
+        if m.determinant().abs() < 1e-12 {
+            return Err("matrix is singular".into());
+        }
+        return Ok(Affine3A::from_mat4(m));
+    }
+    let scale = match t.scale {
+        None => Vec3::ONE,
+        Some(ScaleT::Uniform(s)) => Vec3::splat(s),
+        Some(ScaleT::PerAxis(s)) => v3(s),
+    };
+    if !scale.is_finite() || scale.x * scale.y * scale.z == 0.0 {
+        return Err(format!("scale must be finite and non-zero, got {scale}"));
+    }
+    let mut rot = Quat::IDENTITY;
+    for r in &t.rotate {
+        let axis = v3(r.axis);
+        if !axis.is_finite() || axis.length() < 1e-9 || !r.angle.is_finite() {
+            return Err("rotate needs a finite non-zero axis and a finite angle".into());
+        }
+        rot = Quat::from_axis_angle(axis.normalize(), r.angle.to_radians()) * rot;
+    }
+    let tr = t.translate.map(v3).unwrap_or(Vec3::ZERO);
+    if !tr.is_finite() {
+        return Err(format!("translate must be finite, got {tr}"));
+    }
+    Ok(Affine3A::from_scale_rotation_translation(scale, rot, tr))
+}

@@ -8,8 +8,10 @@
 pub mod error;
 pub mod film;
 pub mod geometry;
+pub mod io;
 pub mod rng;
 pub mod scene;
+pub mod transport;
 
 pub use error::{Error, Result};
 pub use scene::Scene;

@@ -1,1 +1,181 @@
-fn main(){}
+//! The `umbra` command line: `umbra render [SCENE] -o OUT [options]`.
+
+use clap::{Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use umbra::geometry::SceneGeometry;
+use umbra::scene::{Model, Scene};
+use umbra::transport::{self, Progress, RenderOptions};
+
+#[derive(Parser)]
+#[command(name = "umbra", version, about = "Differentiable transient renderer for NLOS imaging")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Render a transient. With no SCENE, renders the built-in default scene.
+    Render(RenderArgs),
+}
+
+#[derive(clap::Args)]
+struct RenderArgs {
+    /// Scene file: Umbra TOML (.toml) or mitransient-style Mitsuba XML (.xml).
+    scene: Option<PathBuf>,
+    /// Output file: .npy (mitransient's layout, default) or .exr. PNG previews are
+    /// written next to it.
+    #[arg(short, long, default_value = "transient.npy")]
+    output: PathBuf,
+    /// Light-transport model: mc3 (Monte Carlo three-bounce) or path (multi-bounce).
+    #[arg(long)]
+    model: Option<String>,
+    /// Samples per measurement (overrides the scene).
+    #[arg(long)]
+    spp: Option<u32>,
+    /// Random seed (overrides the scene).
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Worker threads (default: all cores). The output does not depend on it.
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Longest path in bounces, laser spot and sensor point included (3 = one hidden
+    /// bounce); -1 for unbounded. Overrides the scene.
+    #[arg(long, allow_negative_numbers = true)]
+    max_depth: Option<i64>,
+    /// Do not write the PNG previews.
+    #[arg(long)]
+    no_preview: bool,
+    /// No progress bar.
+    #[arg(short, long)]
+    quiet: bool,
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Render(args) => render(args),
+    };
+    if let Err(e) = result {
+        eprintln!("error: {e}");
+        std::process::exit(if matches!(e, umbra::Error::Cancelled) { 130 } else { 1 });
+    }
+}
+
+fn load_scene(path: Option<&Path>) -> umbra::Result<Scene> {
+    match path {
+        Some(p) => Scene::load(p),
+        None => umbra::scene::default::default_scene(),
+    }
+}
+
+fn render(args: RenderArgs) -> umbra::Result<()> {
+    let mut scene = load_scene(args.scene.as_deref())?;
+    for w in &scene.warnings {
+        eprintln!("warning: {w}");
+    }
+    if let Some(d) = args.max_depth {
+        scene.render.max_bounces = match d {
+            -1 => u32::MAX,
+            d if d >= 3 => d as u32,
+            d => {
+                return Err(umbra::Error::Invalid(format!(
+                    "--max-depth: must be -1 or >= 3 bounces, got {d}"
+                )))
+            }
+        };
+    }
+    let mut opts = RenderOptions::from_scene(&scene);
+    if let Some(m) = &args.model {
+        opts.model = Model::parse(m).ok_or_else(|| {
+            umbra::Error::Invalid(format!("--model: '{m}' is not one of tri3, mc3, path, auto"))
+        })?;
+    }
+    if let Some(s) = args.spp {
+        if s == 0 {
+            return Err(umbra::Error::Invalid("--spp: must be at least 1".into()));
+        }
+        opts.spp = s;
+    }
+    if let Some(s) = args.seed {
+        opts.seed = s;
+    }
+    let pool = {
+        let mut b = rayon::ThreadPoolBuilder::new();
+        if let Some(t) = args.threads {
+            b = b.num_threads(t.max(1));
+        }
+        b.build()
+            .map_err(|e| umbra::Error::Invalid(format!("thread pool: {e}")))?
+    };
+
+    let start = Instant::now();
+    let geom = SceneGeometry::build(&scene);
+    let progress = Arc::new(Progress::default());
+    {
+        let p = progress.clone();
+        // A second Ctrl-C kills the process the usual way.
+        let _ = ctrlc::set_handler(move || {
+            if p.cancel.swap(true, Ordering::Relaxed) {
+                std::process::exit(130);
+            }
+        });
+    }
+    let total = transport::total_samples(&scene, &opts);
+    let bar = if args.quiet {
+        ProgressBar::hidden()
+    } else {
+        let b = ProgressBar::new(total);
+        b.set_style(
+            ProgressStyle::with_template(
+                "{spinner} [{elapsed_precise}] {bar:40} {percent:>3}% {human_pos}/{human_len} samples ({per_sec}, ETA {eta})",
+            )
+            .expect("template"),
+        );
+        b
+    };
+    let done = std::sync::atomic::AtomicBool::new(false);
+    let result = std::thread::scope(|s| {
+        let watcher = s.spawn(|| {
+            while !done.load(Ordering::Relaxed) {
+                bar.set_position(progress.samples_done.load(Ordering::Relaxed));
+                std::thread::sleep(Duration::from_millis(100));
+            }
+        });
+        let r = pool.install(|| transport::render(&scene, &geom, &opts, Some(&progress)));
+        done.store(true, Ordering::Relaxed);
+        let _ = watcher.join();
+        r
+    });
+    bar.finish_and_clear();
+    let transient = result?;
+    let secs = start.elapsed().as_secs_f64();
+    umbra::io::write_transient(&args.output, &transient)?;
+    let mut previews = Vec::new();
+    if !args.no_preview {
+        previews = umbra::io::preview::write_previews(&args.output, &transient)?;
+    }
+    let model = transport::resolve_model(&scene, &opts)?;
+    println!(
+        "umbra: {} {:?} ({}, {}, {} spp, seed {}) in {:.2} s: {:.3} M samples/s -> {}{}",
+        scene.capture.name(),
+        transient.shape,
+        model.name(),
+        scene.total_hidden_triangles(),
+        opts.spp,
+        opts.seed,
+        secs,
+        total as f64 / secs / 1e6,
+        args.output.display(),
+        if previews.is_empty() {
+            String::new()
+        } else {
+            format!(" (+ {} previews)", previews.len())
+        }
+    );
+    Ok(())
+}

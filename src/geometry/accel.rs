@@ -47,12 +47,37 @@ pub struct Hit {
     pub bary: [f32; 2],
 }
 
+/// A hidden triangle's shading data, by flat index.
+#[derive(Clone, Copy, Debug)]
+pub struct HiddenTri {
+    pub v: [Vec3; 3],
+    /// Unit geometric normal, `(v1 - v0) × (v2 - v0)` normalised.
+    pub n: Vec3,
+    /// Albedo at the three vertices (the object's albedo three times if it has no
+    /// per-vertex albedo).
+    pub albedo: [f32; 3],
+    pub two_sided: bool,
+}
+
+impl HiddenTri {
+    pub fn point(&self, bary: [f32; 2]) -> Vec3 {
+        let [b1, b2] = bary;
+        (1.0 - b1 - b2) * self.v[0] + b1 * self.v[1] + b2 * self.v[2]
+    }
+    pub fn albedo_at(&self, bary: [f32; 2]) -> f32 {
+        let [b1, b2] = bary;
+        (1.0 - b1 - b2) * self.albedo[0] + b1 * self.albedo[1] + b2 * self.albedo[2]
+    }
+}
+
 /// The scene's surfaces ready for queries and sampling.
 pub struct SceneGeometry {
     bvh: CwBvh,
     prims: Vec<Prim>,
     /// Hidden triangles by flat index: (object, local triangle).
     pub flat_to_local: Vec<(u32, u32)>,
+    /// Hidden triangles by flat index.
+    pub hidden: Vec<HiddenTri>,
     /// Area sampling of all hidden triangles (hidden-geometry sampling).
     pub hidden_area: AreaDistribution,
     /// Self-intersection offset (m).
@@ -66,6 +91,7 @@ impl SceneGeometry {
         let mut meta = Vec::new();
         let mut flat_to_local = Vec::new();
         let mut areas = Vec::new();
+        let mut hidden = Vec::new();
         let mut extent = scene.wall.axis_u.length() + scene.wall.axis_v.length();
         for (oi, o) in scene.objects.iter().enumerate() {
             for t in 0..o.mesh.triangles.len() {
@@ -74,6 +100,16 @@ impl SceneGeometry {
                 let flat = flat_to_local.len() as u32;
                 flat_to_local.push((oi as u32, t as u32));
                 areas.push(o.mesh.area(t));
+                let idx = o.mesh.triangles[t];
+                hidden.push(HiddenTri {
+                    v: [a, b, c],
+                    n: (b - a).cross(c - a).normalize(),
+                    albedo: match &o.mesh.vertex_albedo {
+                        Some(va) => idx.map(|i| va[i as usize]),
+                        None => [o.albedo; 3],
+                    },
+                    two_sided: o.two_sided,
+                });
                 tris.push(tri(a, b, c));
                 meta.push((
                     SurfaceKind::Hidden {
@@ -123,6 +159,7 @@ impl SceneGeometry {
             bvh,
             prims,
             flat_to_local,
+            hidden,
             hidden_area: AreaDistribution::new(&areas),
             eps: 2e-6 * extent.max(1e-3) + 1e-6,
             wall_normal,

@@ -5,4 +5,4 @@ pub mod accel;
 pub mod mesh;
 pub mod sampling;
 
-pub use accel::{Hit, SceneGeometry, SurfaceKind};
+pub use accel::{HiddenTri, Hit, SceneGeometry, SurfaceKind};

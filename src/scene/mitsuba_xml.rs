@@ -1,8 +1,578 @@
-//! Mitsuba XML importer (placeholder until implemented).
-use super::Scene;
-use crate::error::{Error, Result};
-use std::path::Path;
+//! Importer for the subset of Mitsuba 3 XML that mitransient 1.3.1 users write for NLOS
+//! scenes (y-tal writes it too): a `transient_nlos_path` integrator, one `projector`
+//! laser, a `rectangle` relay wall carrying a `nlos_capture_meter` with a
+//! `transient_hdr_film`, and hidden `obj`/`rectangle` shapes with `diffuse` (optionally
+//! `twosided`) BSDFs. Anything outside the subset is an error naming the element and the
+//! line; nothing is silently ignored (what Umbra reads but does not model becomes a
+//! warning in [`Scene::warnings`]).
+//!
+//! Mapping decisions (mitransient 1.3.1 semantics, read from its source):
+//! - The wall's rectangle is Mitsuba's `[-1, 1]^2` at `z = 0` mapped by `to_world`. Film
+//!   pixel `(ix, iy)` scans the rectangle's local point
+//!   `(2 (ix + ½)/width - 1, 2 (iy + ½)/height - 1, 0)`, so the scan's `axis_u` is
+//!   `to_world · (2, 0, 0)` (film x) and `axis_v` is `to_world · (0, 2, 0)` (film y); scan
+//!   index `iy * width + ix` is mitransient's `(sy, sx)` order. The wall's front is
+//!   Mitsuba's normal `to_world^{-T} · (0, 0, 1)`; for a mirroring `to_world` the wall's
+//!   `axis_u` is negated so that `axis_u × axis_v` still points to the front (the scan
+//!   keeps the film's orientation).
+//! - The laser stands at the projector's `to_world` translation and aims along its local
+//!   +z (as mitransient, which traces that ray); in single capture its target is where
+//!   that ray meets the wall (an error if it points away or misses the wall). y-tal
+//!   writes a translation-only `to_world` and aims the laser at run time: such a laser
+//!   is aimed at the wall's centre, with a warning.
+//! - Depths: see [`mitransient_depth_to_bounces`].
 
+mod params;
+mod tree;
+
+#[cfg(test)]
+mod tests;
+
+use super::{
+    CaptureType, Detector, FilmSpec, HiddenObject, KernelSpec, Laser, LaserEmission, Model,
+    RelayWall, RenderSettings, ScanGrid, Scene, Techniques,
+};
+use crate::error::{Error, Result};
+use crate::geometry::mesh::TriMesh;
+use glam::{Affine3A, Mat3, Mat4, Vec3};
+use params::{Cx, Plugin};
+use std::collections::HashMap;
+use std::path::Path;
+use tree::Node;
+
+/// Mitsuba's `projector` field of view when none is given (degrees; what Mitsuba 3.9
+/// reports for a default projector).
+const DEFAULT_PROJECTOR_FOV: f32 = 34.0221;
+
+/// Reads a Mitsuba XML scene; relative OBJ filenames resolve against its folder.
 pub fn load(path: &Path) -> Result<Scene> {
-    Err(Error::scene(path, "Mitsuba XML import is not implemented yet"))
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    parse(&text, path, &base)
+}
+
+/// Parses Mitsuba XML text. `origin` names it in messages; `base_dir` resolves relative
+/// OBJ filenames.
+pub fn parse(text: &str, origin: &Path, base_dir: &Path) -> Result<Scene> {
+    let root = tree::parse(text, origin)?;
+    let mut cx = Cx {
+        origin,
+        warnings: Vec::new(),
+    };
+    if root.tag != "scene" {
+        return Err(cx.err(root.line, format!("the root element must be <scene>, not <{}>", root.tag)));
+    }
+    if root.attr("version").is_none() {
+        return Err(cx.err(root.line, "<scene> needs a version attribute"));
+    }
+    if let Some(a) = root.attrs.iter().find(|a| a.key != "version") {
+        return Err(cx.err(a.line, format!("<scene>: unknown attribute '{}'", a.key)));
+    }
+
+    let mut bsdfs: HashMap<&str, &Node> = HashMap::new();
+    let (mut integrator, mut emitter, mut shapes) = (None, None, Vec::new());
+    for c in &root.children {
+        match c.tag.as_str() {
+            "default" => {}
+            "integrator" | "emitter" => {
+                let slot = if c.tag == "integrator" { &mut integrator } else { &mut emitter };
+                if slot.is_some() {
+                    return Err(cx.err(c.line, format!("a second <{}>: an NLOS scene has exactly one", c.tag)));
+                }
+                *slot = Some(c);
+            }
+            "shape" => shapes.push(c),
+            "bsdf" => {
+                let id = c.attr("id").ok_or_else(|| {
+                    cx.err(c.line, "a top-level <bsdf> needs an id (shapes refer to it with <ref id=\"..\"/>)")
+                })?;
+                if bsdfs.insert(id, c).is_some() {
+                    return Err(cx.err(c.line, format!("a second <bsdf id=\"{id}\">")));
+                }
+            }
+            "sensor" => {
+                return Err(cx.err(c.line, "the <sensor type=\"nlos_capture_meter\"> must be nested in the relay wall's <shape type=\"rectangle\">"))
+            }
+            t => {
+                return Err(cx.err(c.line, format!("unknown element <{t}> (Umbra reads <default>, <integrator>, <emitter>, <shape> and <bsdf> at the top level)")))
+            }
+        }
+    }
+    let integ_node = integrator.ok_or_else(|| {
+        Error::scene(origin, "no <integrator type=\"transient_nlos_path\">: Umbra imports mitransient NLOS scenes")
+    })?;
+    let integ = integrator_cfg(&mut cx, integ_node)?;
+
+    let mut wall: Option<(WallCfg, usize)> = None;
+    let mut objects = Vec::new();
+    for s in shapes {
+        let shape = shape(&mut cx, s, &bsdfs, base_dir)?;
+        match shape {
+            Shape::Hidden(o) => objects.push(o),
+            Shape::Wall(w) => {
+                if let Some((_, first)) = wall {
+                    return Err(cx.err(s.line, format!("a second relay wall (the first, with its nlos_capture_meter, is at line {first})")));
+                }
+                wall = Some((*w, s.line));
+            }
+        }
+    }
+    let (w, _) = wall.ok_or_else(|| {
+        Error::scene(origin, "no relay wall: a <shape type=\"rectangle\"> must carry the <sensor type=\"nlos_capture_meter\">")
+    })?;
+    let em_node = emitter.ok_or_else(|| Error::scene(origin, "no laser: add an <emitter type=\"projector\">"))?;
+    let laser = projector(&mut cx, em_node, &w.wall, integ.capture)?;
+
+    if let Some((afl, line)) = w.sensor_afl {
+        if afl != integ.afl {
+            cx.warn(line, format!("account_first_and_last_bounces = {afl} on the nlos_capture_meter is deprecated and ignored by mitransient 1.3.1; the integrator's value ({}) is used", integ.afl));
+        }
+    }
+    let (exhaustive_scan, laser_scan) = (w.exhaustive_scan, w.laser_scan);
+    if (integ.capture == CaptureType::Exhaustive) != exhaustive_scan.0 {
+        return Err(cx.err(exhaustive_scan.1, "mitransient needs <boolean name=\"exhaustive_scan\" value=\"true\"/> on the film exactly when capture_type is exhaustive"));
+    }
+    if exhaustive_scan.0 && laser_scan.0 != Some((w.scan.nx as i64, w.scan.ny as i64)) {
+        return Err(cx.err(laser_scan.1, "exhaustive capture: laser_scan_width and laser_scan_height must equal the film's width and height (mitransient's force_equal_illumination_scanning)"));
+    }
+
+    let scene = Scene {
+        detector: Detector { origin: w.sensor_origin },
+        wall: w.wall,
+        laser,
+        scan: w.scan,
+        capture: integ.capture,
+        film: FilmSpec {
+            kernel: integ.kernel,
+            ..w.film
+        },
+        account_first_and_last_bounces: integ.afl,
+        objects,
+        render: RenderSettings {
+            spp: w.spp,
+            seed: w.seed,
+            ..integ.render
+        },
+        warnings: cx.warnings,
+    };
+    scene.validate(origin)?;
+    Ok(scene)
+}
+
+/// What the integrator element says, converted to Umbra's terms.
+struct IntegratorCfg {
+    capture: CaptureType,
+    afl: bool,
+    kernel: KernelSpec,
+    /// spp and seed come from the sensor's sampler.
+    render: RenderSettings,
+}
+
+fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
+    let mut p = Plugin::new(node, cx)?;
+    match p.kind() {
+        "transient_nlos_path" => {}
+        "transient_path" => return Err(cx.err(node.line, "<integrator type=\"transient_path\"> is mitransient's line-of-sight integrator: NLOS scenes use transient_nlos_path")),
+        k => return Err(cx.err(node.line, format!("integrator type '{k}' is not supported: Umbra imports <integrator type=\"transient_nlos_path\">"))),
+    }
+    let _block_size = p.int(cx, "block_size")?; // Parallelism only.
+    let capture = match p.take(cx, "capture_type", &["string", "integer"])? {
+        None => CaptureType::Single,
+        Some(n) => {
+            let v = n.attr("value").unwrap_or("").trim();
+            let c = match v.to_ascii_lowercase().as_str() {
+                "1" if n.tag == "integer" => Some(CaptureType::Single),
+                "2" if n.tag == "integer" => Some(CaptureType::Confocal),
+                "3" if n.tag == "integer" => Some(CaptureType::Exhaustive),
+                s if n.tag == "string" => CaptureType::parse(s),
+                _ => None,
+            };
+            c.ok_or_else(|| cx.err(n.line, format!("capture_type '{v}' is not one of single, confocal, exhaustive (or 1, 2, 3)")))?
+        }
+    };
+    let laser_sampling = p.bool(cx, "nlos_laser_sampling")?.unwrap_or(false);
+    let hg = p.bool(cx, "nlos_hidden_geometry_sampling")?.unwrap_or(false);
+    let hg_rr = p.bool(cx, "nlos_hidden_geometry_sampling_do_rroulette")?.unwrap_or(false);
+    if p.bool(cx, "nlos_hidden_geometry_sampling_includes_relay_wall")? == Some(true) && hg {
+        cx.warn(p.line_of("nlos_hidden_geometry_sampling_includes_relay_wall"), "nlos_hidden_geometry_sampling_includes_relay_wall = true: Umbra's hidden-geometry sampling covers the hidden objects only (the expectation is the same; the noise differs)");
+    }
+    let discard = p.bool(cx, "discard_direct_paths")?.unwrap_or(false);
+    if discard && !laser_sampling {
+        cx.warn(p.line_of("discard_direct_paths"), "discard_direct_paths with nlos_laser_sampling = false: mitransient then also drops three-bounce paths (it tests depth > 2 at the light connection); Umbra drops only laser-spot-to-sensor-point paths");
+    }
+    let afl = p.bool(cx, "account_first_and_last_bounces")?.unwrap_or(false);
+    if p.bool(cx, "force_equal_illumination_scanning")? == Some(false) {
+        return Err(cx.err(p.line_of("force_equal_illumination_scanning"), "force_equal_illumination_scanning = false is not supported: Umbra's exhaustive capture lights the scan grid's points"));
+    }
+
+    let (max_depth, md_line) = p.int(cx, "max_depth")?.unwrap_or((6, node.line));
+    let (rr_depth, rr_line) = p.int(cx, "rr_depth")?.unwrap_or((5, node.line));
+    let fb = p.int(cx, "filter_bounces")?;
+    let fd = p.int(cx, "filter_depth")?;
+    let filter_depth = match (fb, fd) {
+        (Some((b, l)), Some((d, _))) if b != -1 && d != -1 => return Err(cx.err(l, "give only one of filter_bounces and filter_depth (mitransient refuses both)")),
+        (Some((b, l)), _) if b != -1 => Some((b.saturating_add(1), l)), // mitransient: filter_depth = filter_bounces + 1
+        (_, Some((d, l))) if d != -1 => Some((d, l)),
+        _ => None,
+    };
+    if max_depth < -1 || max_depth == 0 {
+        return Err(cx.err(md_line, format!("max_depth must be -1 (unbounded) or positive, got {max_depth}")));
+    }
+    if let Some((d, l)) = filter_depth {
+        if d < 1 {
+            return Err(cx.err(l, format!("filter_bounces/filter_depth must be -1 (off) or select a path length, got depth {d}")));
+        }
+    }
+    if rr_depth <= 0 {
+        return Err(cx.err(rr_line, format!("rr_depth must be positive, got {rr_depth}")));
+    }
+    let (max_bounces, filter_bounces) =
+        mitransient_depth_to_bounces(max_depth, filter_depth.map(|f| f.0), laser_sampling);
+    if max_bounces < 3 {
+        let need = if laser_sampling { 3 } else { 4 };
+        return Err(cx.err(md_line, format!("max_depth = {max_depth} renders no NLOS (three-bounce) light: with nlos_laser_sampling = {laser_sampling} it must be at least {need}, or -1")));
+    }
+    if let (Some(f), Some((_, l))) = (filter_bounces, filter_depth) {
+        if f < 2 || f > max_bounces {
+            return Err(cx.err(l, format!("the bounce filter selects paths of {f} bounces (laser spot ... sensor point), which cannot occur with max_depth = {max_depth}: the render would be zero")));
+        }
+    }
+
+    let filter = p.string(cx, "temporal_filter")?;
+    let stddev = p.float(cx, "gaussian_stddev")?;
+    let kernel = match filter.map(|f| (f.0.trim(), f.1)) {
+        None | Some(("", _)) | Some(("box", _)) => {
+            if stddev.is_some() {
+                cx.warn(p.line_of("gaussian_stddev"), "gaussian_stddev is ignored: the temporal filter is a box");
+            }
+            KernelSpec::Box
+        }
+        Some(("gaussian", line)) => {
+            let sigma = stddev.ok_or_else(|| cx.err(line, "temporal_filter = gaussian needs <float name=\"gaussian_stddev\"> (metres of OPL)"))?;
+            if sigma <= 0.0 {
+                return Err(cx.err(p.line_of("gaussian_stddev"), format!("gaussian_stddev must be > 0, got {sigma}")));
+            }
+            cx.warn(line, "temporal_filter = gaussian: Umbra smooths time with a Gaussian of gaussian_stddev metres of OPL; mitransient 1.3.1 reads this setting but always bins with a box");
+            KernelSpec::Gaussian { sigma_opl: sigma }
+        }
+        Some((f, line)) => return Err(cx.err(line, format!("temporal_filter '{f}' is not one of box, gaussian"))),
+    };
+    p.finish(cx)?;
+    Ok(IntegratorCfg {
+        capture,
+        afl,
+        kernel,
+        render: RenderSettings {
+            spp: 1,
+            max_bounces,
+            filter_bounces,
+            discard_direct_paths: discard,
+            // Russian roulette does not change the expectation; mitransient starts it
+            // at vertex depth rr_depth, Umbra after rr_bounces bounces.
+            rr_bounces: u32::try_from(rr_depth).unwrap_or(u32::MAX),
+            seed: 0,
+            model: Model::Path,
+            techniques: Techniques {
+                laser_sampling,
+                hidden_geometry_sampling: hg,
+                // mitransient samples directions by hidden-geometry sampling alone, or
+                // (with do_rroulette) picks it or BSDF sampling with probability ½.
+                bsdf_sampling: !hg || hg_rr,
+            },
+        },
+    })
+}
+
+/// Converts mitransient's depths to Umbra's bounce counts (the number of surface
+/// vertices from the laser spot to the sensor point, both included: 3 = laser spot,
+/// one hidden point, sensor point). Returns `(max_bounces, filter_bounces)`.
+///
+/// In mitransient 1.3.1's `transient_nlos_path` the sensor point is vertex depth 0, and
+/// light is gathered at vertex depth `d` only while `d + 1 < max_depth`, by next-event
+/// estimation evaluated "at depth" `e`; `filter_bounces = n` means `filter_depth = n + 1`
+/// and keeps contributions with `e == filter_depth`.
+/// - Laser sampling on: vertex `d` connects to the laser spot, and the estimator runs at
+///   `e = d + 2`; the path has `d + 2` bounces. So `max_bounces = max_depth` and the
+///   filter is `filter_depth` (= `filter_bounces + 1`: `filter_bounces = 2` selects
+///   three bounces, DESIGN §7).
+/// - Laser sampling off: vertex `d` is itself the laser spot, lit by next-event
+///   estimation to the projector with `e = d`; the path has `d + 1` bounces. So
+///   `max_bounces = max_depth - 1` and the filter is `filter_depth + 1`.
+///
+/// `max_depth = -1` is unbounded (`u32::MAX`). Inputs are validated by the caller
+/// (`max_depth` is -1 or positive, `filter_depth >= 1`).
+fn mitransient_depth_to_bounces(
+    max_depth: i64,
+    filter_depth: Option<i64>,
+    laser_sampling: bool,
+) -> (u32, Option<u32>) {
+    let extra: i64 = if laser_sampling { 0 } else { 1 };
+    let to_u32 = |v: i64| u32::try_from(v.max(0)).unwrap_or(u32::MAX);
+    let max_bounces = if max_depth < 0 {
+        u32::MAX
+    } else {
+        to_u32(max_depth - extra)
+    };
+    (max_bounces, filter_depth.map(|d| to_u32(d.saturating_add(extra))))
+}
+
+enum Shape {
+    Hidden(HiddenObject),
+    Wall(Box<WallCfg>),
+}
+
+/// The relay wall and what its nlos_capture_meter says.
+struct WallCfg {
+    wall: RelayWall,
+    scan: ScanGrid,
+    film: FilmSpec,
+    sensor_origin: Vec3,
+    sensor_afl: Option<(bool, usize)>,
+    spp: u32,
+    seed: u64,
+    /// (film's exhaustive_scan, its line); (laser_scan_width/height, line).
+    exhaustive_scan: (bool, usize),
+    laser_scan: (Option<(i64, i64)>, usize),
+}
+
+fn shape(cx: &mut Cx, node: &Node, bsdfs: &HashMap<&str, &Node>, base_dir: &Path) -> Result<Shape> {
+    let mut p = Plugin::new(node, cx)?;
+    let kind = p.kind();
+    if kind != "obj" && kind != "rectangle" {
+        return Err(cx.err(node.line, format!("shape type '{kind}' is not supported (obj, rectangle)")));
+    }
+    let m = p.transform(cx, "to_world")?.unwrap_or(Mat4::IDENTITY);
+    let (albedo, two_sided) = match p.object(cx, &["bsdf", "ref"])? {
+        Some(b) => bsdf(cx, b, bsdfs, 0)?,
+        None => (0.5, false), // Mitsuba's default: diffuse, reflectance 0.5.
+    };
+    let det = Mat3::from_mat4(m).determinant();
+    let name = |fallback: String| node.attr("id").map(str::to_string).unwrap_or(fallback);
+    let (mut mesh, name) = if kind == "obj" {
+        let (file, fline) = p.string(cx, "filename")?.ok_or_else(|| cx.err(node.line, "<shape type=\"obj\"> needs <string name=\"filename\" value=\"..\"/>"))?;
+        let face_normals = p.bool(cx, "face_normals")?.unwrap_or(false);
+        let sensor = p.object(cx, &["sensor"])?;
+        if let Some(s) = sensor {
+            return Err(cx.err(s.line, "the nlos_capture_meter must sit in a <shape type=\"rectangle\"> (Umbra's relay wall is a rectangle)"));
+        }
+        p.finish(cx)?;
+        let path = base_dir.join(file);
+        let text = std::fs::read_to_string(&path).map_err(|e| cx.err(fline, format!("<shape type=\"obj\">: cannot read '{}': {e}", path.display())))?;
+        let mesh = TriMesh::parse_obj(&text, &path)?;
+        if !face_normals && text.lines().any(|l| l.trim_start().starts_with("vn ")) {
+            cx.warn(node.line, format!("{file} has vertex normals, which Mitsuba uses for shading (face_normals = false); Umbra always uses the triangles' geometric normals"));
+        }
+        let stem = Path::new(file).file_stem().map(|s| s.to_string_lossy().into_owned());
+        (mesh, name(stem.unwrap_or_else(|| file.to_string())))
+    } else {
+        if let Some(s) = p.object(cx, &["sensor"])? {
+            let u = m.transform_vector3(Vec3::X * 2.0);
+            let v = m.transform_vector3(Vec3::Y * 2.0);
+            if !(u.cross(v).length() > 1e-12) {
+                return Err(cx.err(node.line, "the relay wall's to_world flattens it to zero area"));
+            }
+            p.finish(cx)?;
+            let center = m.transform_point3(Vec3::ZERO);
+            let mut w = sensor(cx, s)?;
+            w.scan.center = center;
+            w.scan.axis_u = u;
+            w.scan.axis_v = v;
+            // Mitsuba's normal is to_world^{-T} · z: flip axis_u when to_world mirrors.
+            let axis_u = if det < 0.0 { -u } else { u };
+            w.wall = RelayWall { center, axis_u, axis_v: v, albedo };
+            return Ok(Shape::Wall(Box::new(w)));
+        }
+        p.finish(cx)?;
+        let positions = vec![
+            Vec3::new(-1.0, -1.0, 0.0),
+            Vec3::new(1.0, -1.0, 0.0),
+            Vec3::new(1.0, 1.0, 0.0),
+            Vec3::new(-1.0, 1.0, 0.0),
+        ];
+        let mesh = TriMesh {
+            positions,
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+            vertex_albedo: None,
+        };
+        (mesh, name(format!("rectangle@{}", node.line)))
+    };
+    if kind == "rectangle" && det < 0.0 {
+        // Keep the front where Mitsuba has it (to_world^{-T} · z).
+        for t in &mut mesh.triangles {
+            t.swap(1, 2);
+        }
+    }
+    mesh.transform(&Affine3A::from_mat4(m));
+    let dropped = mesh.drop_degenerate();
+    if dropped > 0 {
+        cx.warn(node.line, format!("{name}: dropped {dropped} degenerate triangle(s)"));
+    }
+    if mesh.triangles.is_empty() {
+        return Err(cx.err(node.line, format!("{name} has no non-degenerate triangles")));
+    }
+    Ok(Shape::Hidden(HiddenObject {
+        name,
+        mesh,
+        albedo,
+        two_sided,
+    }))
+}
+
+/// `(albedo, two_sided)` of a `<bsdf>` or a `<ref id="..">` to a top-level one.
+fn bsdf(cx: &mut Cx, node: &Node, bsdfs: &HashMap<&str, &Node>, depth: u32) -> Result<(f32, bool)> {
+    if depth > 4 {
+        return Err(cx.err(node.line, "BSDFs nested or referenced too deeply (a reference cycle?)"));
+    }
+    if node.tag == "ref" {
+        if let Some(a) = node.attrs.iter().find(|a| a.key != "id" && a.key != "name") {
+            return Err(cx.err(a.line, format!("<ref>: unknown attribute '{}'", a.key)));
+        }
+        let id = node.attr("id").ok_or_else(|| cx.err(node.line, "<ref> needs an id"))?;
+        let target = bsdfs.get(id).ok_or_else(|| cx.err(node.line, format!("<ref id=\"{id}\">: no top-level <bsdf id=\"{id}\">")))?;
+        return bsdf(cx, target, bsdfs, depth + 1);
+    }
+    let mut p = Plugin::new(node, cx)?;
+    let out = match p.kind() {
+        "diffuse" => {
+            let r = p.mono(cx, "reflectance")?.unwrap_or(0.5);
+            if !(0.0..=1.0).contains(&r) {
+                return Err(cx.err(p.line_of("reflectance"), format!("diffuse reflectance must be in [0, 1], got {r}")));
+            }
+            (r, false)
+        }
+        "twosided" => {
+            let inner = p.object(cx, &["bsdf", "ref"])?.ok_or_else(|| cx.err(node.line, "<bsdf type=\"twosided\"> needs one nested diffuse <bsdf> (or <ref>)"))?;
+            (bsdf(cx, inner, bsdfs, depth + 1)?.0, true)
+        }
+        k => return Err(cx.err(node.line, format!("bsdf type '{k}' is not supported: Umbra's surfaces are Lambertian (diffuse, or twosided around a diffuse)"))),
+    };
+    p.finish(cx)?;
+    Ok(out)
+}
+
+fn sensor(cx: &mut Cx, node: &Node) -> Result<WallCfg> {
+    let mut p = Plugin::new(node, cx)?;
+    if p.kind() != "nlos_capture_meter" {
+        return Err(cx.err(node.line, format!("sensor type '{}' is not supported: the relay wall carries a nlos_capture_meter", p.kind())));
+    }
+    let sensor_origin = p.point(cx, "sensor_origin")?.unwrap_or(Vec3::ZERO);
+    let sensor_afl = p.bool(cx, "account_first_and_last_bounces")?.map(|b| (b, p.line_of("account_first_and_last_bounces")));
+    let film_node = p.object(cx, &["film"])?.ok_or_else(|| cx.err(node.line, "the nlos_capture_meter needs a <film type=\"transient_hdr_film\">"))?;
+    let sampler = p.object(cx, &["sampler"])?;
+    p.finish(cx)?;
+
+    let mut f = Plugin::new(film_node, cx)?;
+    if f.kind() != "transient_hdr_film" {
+        return Err(cx.err(film_node.line, format!("film type '{}' is not supported: use transient_hdr_film", f.kind())));
+    }
+    let count = |f: &mut Plugin, cx: &Cx, name: &str, default: Option<i64>| -> Result<u32> {
+        let (v, line) = match (f.int(cx, name)?, default) {
+            (Some(v), _) => v,
+            (None, Some(d)) => (d, film_node.line),
+            (None, None) => return Err(cx.err(film_node.line, format!("the transient_hdr_film needs <integer name=\"{name}\">"))),
+        };
+        u32::try_from(v).ok().filter(|&v| v > 0).ok_or_else(|| cx.err(line, format!("{name} must be a positive count, got {v}")))
+    };
+    let nx = count(&mut f, cx, "width", None)?;
+    let ny = count(&mut f, cx, "height", None)?;
+    let temporal_bins = count(&mut f, cx, "temporal_bins", Some(2048))?;
+    let bin_width_opl = f.float(cx, "bin_width_opl")?.unwrap_or(0.003);
+    if bin_width_opl <= 0.0 {
+        return Err(cx.err(f.line_of("bin_width_opl"), format!("bin_width_opl must be > 0, got {bin_width_opl}")));
+    }
+    let start_opl = f.float(cx, "start_opl")?.unwrap_or(0.0);
+    let exhaustive_scan = (f.bool(cx, "exhaustive_scan")?.unwrap_or(false), f.line_of("exhaustive_scan"));
+    let lw = f.int(cx, "laser_scan_width")?.map(|v| v.0);
+    let lh = f.int(cx, "laser_scan_height")?.map(|v| v.0);
+    let laser_scan = (lw.zip(lh), f.line_of("laser_scan_width"));
+    if let Some(r) = f.object(cx, &["rfilter"])? {
+        let mut rf = Plugin::new(r, cx)?;
+        if rf.kind() != "box" {
+            return Err(cx.err(r.line, format!("rfilter type '{}': mitransient's transient film supports only the box filter", rf.kind())));
+        }
+        let _radius = rf.float(cx, "radius")?; // mitransient bins by pixel whatever the radius.
+        rf.finish(cx)?;
+    }
+    f.finish(cx)?;
+
+    let (mut spp, mut seed) = (4u32, 0u64); // Mitsuba's independent sampler defaults.
+    if let Some(s) = sampler {
+        let mut sp = Plugin::new(s, cx)?;
+        if sp.kind() != "independent" {
+            return Err(cx.err(s.line, format!("sampler type '{}' is not supported: use independent", sp.kind())));
+        }
+        if let Some((n, line)) = sp.int(cx, "sample_count")? {
+            spp = u32::try_from(n).ok().filter(|&n| n > 0).ok_or_else(|| cx.err(line, format!("sample_count must be a positive count, got {n}")))?;
+        }
+        if let Some((n, line)) = sp.int(cx, "seed")? {
+            seed = u64::try_from(n).map_err(|_| cx.err(line, format!("seed must be >= 0, got {n}")))?;
+        }
+        sp.finish(cx)?;
+    }
+    let zero = Vec3::ZERO;
+    Ok(WallCfg {
+        wall: RelayWall { center: zero, axis_u: zero, axis_v: zero, albedo: 0.0 },
+        scan: ScanGrid { nx, ny, center: zero, axis_u: zero, axis_v: zero },
+        film: FilmSpec { temporal_bins, bin_width_opl, start_opl, kernel: KernelSpec::Box },
+        sensor_origin,
+        sensor_afl,
+        spp,
+        seed,
+        exhaustive_scan,
+        laser_scan,
+    })
+}
+
+fn projector(cx: &mut Cx, node: &Node, wall: &RelayWall, capture: CaptureType) -> Result<Laser> {
+    let mut p = Plugin::new(node, cx)?;
+    if p.kind() != "projector" {
+        return Err(cx.err(node.line, format!("emitter type '{}' is not supported: the laser is an <emitter type=\"projector\">", p.kind())));
+    }
+    let irradiance = p.mono(cx, "irradiance")?.unwrap_or(1.0) * p.float(cx, "scale")?.unwrap_or(1.0);
+    if irradiance < 0.0 {
+        return Err(cx.err(p.line_of("irradiance"), format!("the projector's irradiance must be >= 0, got {irradiance}")));
+    }
+    let fov_deg = p.float(cx, "fov")?.unwrap_or(DEFAULT_PROJECTOR_FOV);
+    let m = p.transform(cx, "to_world")?.unwrap_or(Mat4::IDENTITY);
+    let xf_line = p.line_of("to_world");
+    p.finish(cx)?;
+
+    let origin = m.transform_point3(Vec3::ZERO);
+    let dir = m.transform_vector3(Vec3::Z);
+    if wall.height_above(origin) <= 0.0 {
+        return Err(cx.err(xf_line, format!("the laser at {origin} is behind (or on) the relay wall: it must be on the side the wall faces")));
+    }
+    let n = wall.normal();
+    let toward = dir.dot(n);
+    let hit = (toward < 0.0).then(|| origin + dir * ((wall.center - origin).dot(n) / toward));
+    let on_wall = |h: Vec3| {
+        // Solve h - centre = s U + t V in the wall's plane.
+        let (u, v, d) = (wall.axis_u, wall.axis_v, h - wall.center);
+        let (uu, uv, vv) = (u.dot(u), u.dot(v), v.dot(v));
+        let det = uu * vv - uv * uv;
+        let s = (vv * d.dot(u) - uv * d.dot(v)) / det;
+        let t = (uu * d.dot(v) - uv * d.dot(u)) / det;
+        s.abs() <= 0.5 + 1e-4 && t.abs() <= 0.5 + 1e-4
+    };
+    let translation_only = Mat3::from_mat4(m).abs_diff_eq(Mat3::IDENTITY, 1e-6);
+    let target = match hit {
+        _ if capture != CaptureType::Single => hit.filter(|&h| on_wall(h)).unwrap_or(wall.center),
+        Some(h) if on_wall(h) => h,
+        Some(h) if !translation_only => {
+            return Err(cx.err(xf_line, format!("the laser's beam (its local +z) meets the relay wall's plane at {h}, outside the wall")))
+        }
+        None if !translation_only => {
+            return Err(cx.err(xf_line, format!("the laser points away from the relay wall (its local +z is {dir})")))
+        }
+        _ => {
+            cx.warn(xf_line, format!("the projector's to_world is a translation only (y-tal aims the laser at run time): aiming it at the relay wall's centre {}", wall.center));
+            wall.center
+        }
+    };
+    Ok(Laser {
+        origin,
+        target,
+        emission: LaserEmission::Irradiance { irradiance, fov_deg },
+        spot_radius: 0.0,
+    })
 }

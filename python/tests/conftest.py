@@ -1,0 +1,52 @@
+"""Fixtures for Umbra's Python-side validation tests.
+
+- `mt`: (mi, mitr) with mitransient 1.3.1 / Mitsuba 3.9.1 loaded in variant llvm_ad_mono,
+  DRJIT_LIBLLVM_PATH pointing at LLVM 19, 2 threads (override with UMBRA_TEST_THREADS).
+- `umbra_bin`: path of the Umbra CLI from env UMBRA_BIN (default
+  <repo>/target/release/umbra). A missing binary FAILS the tests that need it (never skips).
+  The special value UMBRA_BIN=mitransient-self substitutes mitransient itself (other seeds)
+  for Umbra: a calibration run of the statistics in test_vs_mitransient.py.
+"""
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+PY_DIR = Path(__file__).resolve().parents[1]          # <repo>/python
+REPO = PY_DIR.parent
+VALIDATION = PY_DIR / "validation"
+sys.path.insert(0, str(VALIDATION))
+
+SELF_CHECK = "mitransient-self"
+
+
+@pytest.fixture(scope="session")
+def mt():
+    import mtutil
+
+    return mtutil.setup(threads=int(os.environ.get("UMBRA_TEST_THREADS", "2")))
+
+
+@pytest.fixture(scope="session")
+def umbra_bin() -> str:
+    path = os.environ.get("UMBRA_BIN", str(REPO / "target" / "release" / "umbra"))
+    if path == SELF_CHECK:
+        return path
+    if not (os.path.isfile(path) and os.access(path, os.X_OK)):
+        pytest.fail(
+            f"Umbra binary not found or not executable: {path!r}. Build it with "
+            "`cargo build --release` (-> target/release/umbra) or point UMBRA_BIN at it "
+            f"(UMBRA_BIN={SELF_CHECK} runs the statistics against mitransient itself).",
+            pytrace=False,
+        )
+    return path
+
+
+@pytest.fixture(scope="session")
+def cache_dir() -> Path:
+    d = VALIDATION / "cache"
+    d.mkdir(exist_ok=True)
+    return d

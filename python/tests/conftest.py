@@ -30,9 +30,8 @@ def mt():
     return mtutil.setup(threads=int(os.environ.get("UMBRA_TEST_THREADS", "2")))
 
 
-@pytest.fixture(scope="session")
-def umbra_bin() -> str:
-    path = os.environ.get("UMBRA_BIN", str(REPO / "target" / "release" / "umbra"))
+def require_umbra(path: str) -> str:
+    """Fail (not skip, not error) the calling test if the Umbra binary is missing."""
     if path == SELF_CHECK:
         return path
     if not (os.path.isfile(path) and os.access(path, os.X_OK)):
@@ -43,6 +42,13 @@ def umbra_bin() -> str:
             pytrace=False,
         )
     return path
+
+
+@pytest.fixture(scope="session")
+def umbra_bin() -> str:
+    """Path of the Umbra CLI (UMBRA_BIN or <repo>/target/release/umbra); tests call
+    require_umbra() on it so that a missing binary is a test FAILURE with a clear message."""
+    return os.environ.get("UMBRA_BIN", str(REPO / "target" / "release" / "umbra"))
 
 
 @pytest.fixture(scope="session")

@@ -1,15 +1,20 @@
 """Cross-validation of Umbra's CLI against mitransient 1.3.1 (transient_nlos_path).
 
-Scenes: python/validation/scenes/{T,arc}.xml (planar letter, bent sheet), each rendered as a
-`single` and a `confocal` capture (16x16 scan, 256 bins), in four variants:
+Scenes: python/validation/scenes/{T,arc,near}.xml (planar letter at ~1 m, bent sheet at ~1 m,
+plate at 0.35 m), each rendered as a `single` and a `confocal` capture (16x16 scan, 256 bins),
+in these variants:
 
   3b-hgs   three-bounce only, hidden-geometry sampling   (Umbra --model mc3)
   3b-bsdf  three-bounce only, BSDF sampling              (Umbra --model mc3)
   mb-hgs   up to 6 bounces, HGS without the relay wall   (Umbra --model path): path space
            WITHOUT relay-wall vertices between x_s and x_l (mitransient's HGS never samples
            the wall)
+  mb-hgs-wall  up to 6 bounces, HGS including the wall  (Umbra --model path): all paths
   mb-bsdf  up to 6 bounces, BSDF sampling                (Umbra --model path): all paths,
            including relay-wall interreflections
+
+For T and arc the relay-wall inter-reflections fall outside the time window (T: mb == 3b in
+mitransient); `near` puts them inside: there mb-bsdf = mb-hgs-wall = mb-hgs + ~3 %.
 
 Both renderers read the same variant XML (cache/variants/, <default> values filled in).
 Umbra CLI: `umbra render SCENE.xml -o OUT.npy --spp N --seed S --model mc3|path`, writing
@@ -41,7 +46,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import SELF_CHECK, VALIDATION
+from conftest import SELF_CHECK, VALIDATION, require_umbra
 
 SCENES_DIR = VALIDATION / "scenes"
 K = 3                     # independent renders per renderer
@@ -54,11 +59,16 @@ VARIANTS = {
     "3b-hgs": (dict(max_depth=3, filter_bounces=2, hgs="true", hgs_wall="false"), "mc3", 2048, 2048),
     "3b-bsdf": (dict(max_depth=3, filter_bounces=2, hgs="false", hgs_wall="false"), "mc3", 16384, 2048),
     "mb-hgs": (dict(max_depth=6, filter_bounces=-1, hgs="true", hgs_wall="false"), "path", 2048, 2048),
+    "mb-hgs-wall": (dict(max_depth=6, filter_bounces=-1, hgs="true", hgs_wall="true"), "path", 4096, 2048),
     "mb-bsdf": (dict(max_depth=6, filter_bounces=-1, hgs="false", hgs_wall="false"), "path", 16384, 4096),
 }
-SCENES = ["T", "arc"]
+SCENE_VARIANTS = {
+    "T": ["3b-hgs", "3b-bsdf", "mb-hgs", "mb-bsdf"],
+    "arc": ["3b-hgs", "3b-bsdf", "mb-hgs", "mb-bsdf"],
+    "near": ["3b-hgs", "mb-hgs", "mb-hgs-wall", "mb-bsdf"],
+}
 CAPTURES = ["single", "confocal"]
-CASES = [(s, c, v) for s in SCENES for c in CAPTURES for v in VARIANTS]
+CASES = [(s, c, v) for s, vs in SCENE_VARIANTS.items() for c in CAPTURES for v in vs]
 
 
 def _selected(case_id: str) -> bool:
@@ -190,6 +200,7 @@ def test_vs_mitransient(scene, capture, variant, mt, umbra_bin, cache_dir, tmp_p
     case_id = f"{scene}-{capture}-{variant}"
     if not _selected(case_id):
         pytest.skip("deselected by UMBRA_XVAL_CASES")
+    require_umbra(umbra_bin)
     params, model, spp_m, spp_u = VARIANTS[variant]
     spp_u = max(1, int(round(spp_u * float(os.environ.get("UMBRA_XVAL_SPP_SCALE", "1")))))
     xml = write_variant(scene, capture, variant, cache_dir / "variants")

@@ -184,9 +184,8 @@ def main():
         hist, H_mt, se_mt = measure(scene, spp, args.seeds)
         dt = time.time() - t0
         # scan points used by the integrator (ray from sensor_origin to the pixel centre, hit)
-        st = np.array(scene.integrator().sensor_targets).reshape(3, -1).T.reshape(SCAN[1], SCAN[0], 3) \
-            if np.array(scene.integrator().sensor_targets).shape[0] == 3 else \
-            np.array(scene.integrator().sensor_targets).reshape(SCAN[1], SCAN[0], 3)
+        st = np.array(scene.integrator().sensor_targets)     # (3, N) from Dr.Jit
+        st = (st.T if st.shape[0] == 3 else st).reshape(SCAN[1], SCAN[0], 3)
         targets_ok = np.allclose(st, scan_points(), atol=1e-6)
         # time: bin the closed form's quadrature nodes the same way; compare mean OPL
         edges = start + BIN_W * np.arange(bins + 1)

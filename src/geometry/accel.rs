@@ -80,6 +80,11 @@ pub struct SceneGeometry {
     pub hidden: Vec<HiddenTri>,
     /// Area sampling of all hidden triangles (hidden-geometry sampling).
     pub hidden_area: AreaDistribution,
+    /// Area sampling of the hidden triangles followed by the wall's two triangles
+    /// (flat indices `hidden.len()` and `hidden.len() + 1`).
+    pub hidden_and_wall_area: AreaDistribution,
+    /// The wall's two triangles.
+    pub wall_tris: [[Vec3; 3]; 2],
     /// Self-intersection offset (m).
     pub eps: f32,
     pub wall_normal: Vec3,
@@ -125,6 +130,11 @@ impl SceneGeometry {
         let c10 = c00 + w.axis_u;
         let c11 = c10 + w.axis_v;
         let c01 = c00 + w.axis_v;
+        let wall_tris = [[c00, c10, c11], [c00, c11, c01]];
+        let mut areas_with_wall = areas.clone();
+        for [a, b, c] in wall_tris {
+            areas_with_wall.push(0.5 * (b - a).cross(c - a).length());
+        }
         for t in [tri(c00, c10, c11), tri(c00, c11, c01)] {
             tris.push(t);
             meta.push((SurfaceKind::Wall, u32::MAX));
@@ -161,6 +171,8 @@ impl SceneGeometry {
             flat_to_local,
             hidden,
             hidden_area: AreaDistribution::new(&areas),
+            hidden_and_wall_area: AreaDistribution::new(&areas_with_wall),
+            wall_tris,
             eps: 2e-6 * extent.max(1e-3) + 1e-6,
             wall_normal,
         }

@@ -193,9 +193,9 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
     let laser_sampling = p.bool(cx, "nlos_laser_sampling")?.unwrap_or(false);
     let hg = p.bool(cx, "nlos_hidden_geometry_sampling")?.unwrap_or(false);
     let hg_rr = p.bool(cx, "nlos_hidden_geometry_sampling_do_rroulette")?.unwrap_or(false);
-    if p.bool(cx, "nlos_hidden_geometry_sampling_includes_relay_wall")? == Some(true) && hg {
-        cx.warn(p.line_of("nlos_hidden_geometry_sampling_includes_relay_wall"), "nlos_hidden_geometry_sampling_includes_relay_wall = true: Umbra's hidden-geometry sampling covers the hidden objects only (the expectation is the same; the noise differs)");
-    }
+    let hg_wall = p
+        .bool(cx, "nlos_hidden_geometry_sampling_includes_relay_wall")?
+        .unwrap_or(false);
     let discard = p.bool(cx, "discard_direct_paths")?.unwrap_or(false);
     if discard && !laser_sampling {
         cx.warn(p.line_of("discard_direct_paths"), "discard_direct_paths with nlos_laser_sampling = false: mitransient then also drops three-bounce paths (it tests depth > 2 at the light connection); Umbra drops only laser-spot-to-sensor-point paths");
@@ -275,6 +275,7 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
             techniques: Techniques {
                 laser_sampling,
                 hidden_geometry_sampling: hg,
+                hidden_geometry_includes_wall: hg_wall,
                 // mitransient samples directions by hidden-geometry sampling alone, or
                 // (with do_rroulette) picks it or BSDF sampling with probability ½.
                 bsdf_sampling: !hg || hg_rr,

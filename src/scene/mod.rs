@@ -215,6 +215,10 @@ pub struct Techniques {
     pub laser_sampling: bool,
     /// Area sampling of hidden surfaces (mitransient `nlos_hidden_geometry_sampling`).
     pub hidden_geometry_sampling: bool,
+    /// Hidden-geometry sampling also samples the relay wall's area, so it reaches paths
+    /// that bounce off the wall mid-way (mitransient
+    /// `nlos_hidden_geometry_sampling_includes_relay_wall`).
+    pub hidden_geometry_includes_wall: bool,
     /// Cosine-weighted (BSDF) sampling of the next direction.
     pub bsdf_sampling: bool,
 }

@@ -161,6 +161,8 @@ struct RenderT {
     laser_sampling: bool,
     #[serde(default = "yes")]
     hidden_geometry_sampling: bool,
+    #[serde(default)]
+    hidden_geometry_includes_wall: bool,
     #[serde(default = "yes")]
     bsdf_sampling: bool,
 }
@@ -353,6 +355,7 @@ pub fn parse(
         techniques: Techniques {
             laser_sampling: r.laser_sampling,
             hidden_geometry_sampling: r.hidden_geometry_sampling,
+            hidden_geometry_includes_wall: r.hidden_geometry_includes_wall,
             bsdf_sampling: r.bsdf_sampling,
         },
     };

@@ -25,8 +25,10 @@
 //! `f(y_0) G(y_0,y_1) f(y_1) … f(y_k) G(y_k, x_l) · P (ρ_w/π)` (point spot), each
 //! `G(a, b) = |cos θ_a| |cos θ_b| / |a-b|²` with visibility, `f = ρ/π`; it lands at OPL
 //! `Σ|y_i - y_{i+1}| + |y_k - x_l|` (plus the laser and detector legs if requested).
-//! The wall scatters like any surface (paths may bounce off it mid-way) but is never
-//! sampled by hidden-geometry sampling.
+//! The wall scatters like any surface (paths may bounce off it mid-way); hidden-geometry
+//! sampling samples it only with `hidden_geometry_includes_wall`, so with BSDF sampling
+//! off and that flag off, paths through the wall (5+ bounces) are missing, as in
+//! mitransient.
 //!
 //! Supports: all capture types, one- and two-sided Lambertian surfaces, per-vertex
 //! albedo, each technique switched off alone (not BSDF and hidden-geometry sampling
@@ -88,7 +90,13 @@ pub fn sample<S: Sink>(
     } else {
         0.0
     };
-    let pdf_hidden = geom.hidden_area.pdf_area();
+    let hg_dist = if tech.hidden_geometry_includes_wall {
+        &geom.hidden_and_wall_area
+    } else {
+        &geom.hidden_area
+    };
+    let pdf_hg = hg_dist.pdf_area();
+    let n_hidden = geom.hidden.len() as u32;
 
     scratch.vertices.clear();
     scratch.vertices.push(ctx.wall_vertex(ctx.x_s));
@@ -120,20 +128,24 @@ pub fn sample<S: Sink>(
             };
             (ds.dir, hit.t, hit.p, hit.n, hit.kind, hit.flat, hit.bary)
         } else {
-            let ts = geom
-                .hidden_area
-                .sample((u_pick - c_bsdf) / c_hg, u_dir);
-            let tri = &geom.hidden[ts.tri as usize];
-            let y = tri.point(ts.bary);
+            let ts = hg_dist.sample((u_pick - c_bsdf) / c_hg, u_dir);
+            let (y, n, kind, flat) = if ts.tri < n_hidden {
+                let tri = &geom.hidden[ts.tri as usize];
+                let (object, t) = geom.flat_to_local[ts.tri as usize];
+                (tri.point(ts.bary), tri.n, SurfaceKind::Hidden { object, tri: t }, ts.tri)
+            } else {
+                let [a, b, c] = geom.wall_tris[(ts.tri - n_hidden) as usize];
+                let [b1, b2] = ts.bary;
+                let y = (1.0 - b1 - b2) * a + b1 * b + b2 * c;
+                (y, ctx.n_w, SurfaceKind::Wall, u32::MAX)
+            };
             let d = y - x.p;
             let dist = d.length();
             let dir = d / dist;
             if x.n_side.dot(dir) <= 0.0 || geom.occluded(x.p, y) {
                 break;
             }
-            let (object, t) = geom.flat_to_local[ts.tri as usize];
-            let kind = SurfaceKind::Hidden { object, tri: t };
-            (dir, dist, y, tri.n, kind, ts.tri, ts.bary)
+            (dir, dist, y, n, kind, flat, ts.bary)
         };
         let cos_x = x.n_side.dot(dir);
         let cos_y = y_n.dot(dir).abs();
@@ -142,7 +154,11 @@ pub fn sample<S: Sink>(
         }
         let inv_d2 = 1.0 / (dist * dist);
         let p_bsdf_area = cos_x * FRAC_1_PI * cos_y * inv_d2;
-        let p_hg_area = if kind == SurfaceKind::Wall { 0.0 } else { pdf_hidden };
+        let p_hg_area = if kind != SurfaceKind::Wall || tech.hidden_geometry_includes_wall {
+            pdf_hg
+        } else {
+            0.0
+        };
         let q = c_bsdf * p_bsdf_area + c_hg * p_hg_area;
         beta *= x.f * cos_x * cos_y * inv_d2 / q;
         opl += dist;

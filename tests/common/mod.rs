@@ -1,0 +1,91 @@
+//! Helpers shared by the integration tests: scenes from inline TOML and OBJ text,
+//! renders, and Monte Carlo statistics over independent seeds.
+#![allow(dead_code)]
+
+use std::path::Path;
+use umbra::geometry::mesh::TriMesh;
+use umbra::geometry::SceneGeometry;
+use umbra::scene::{toml_format, Model, Scene};
+use umbra::transport::{self, RenderOptions, Transient};
+
+/// A scene from TOML text whose objects name OBJ texts in `objs`.
+pub fn scene(toml: &str, objs: &[(&str, &str)]) -> Scene {
+    try_scene(toml, objs).unwrap_or_else(|e| panic!("test scene: {e}"))
+}
+
+pub fn try_scene(toml: &str, objs: &[(&str, &str)]) -> umbra::Result<Scene> {
+    let objs: Vec<(String, String)> = objs.iter().map(|(a, b)| (a.to_string(), b.to_string())).collect();
+    toml_format::parse(toml, Path::new("test.toml"), &move |f| {
+        let text = objs
+            .iter()
+            .find(|(n, _)| n == f)
+            .map(|(_, t)| t.clone())
+            .unwrap_or_else(|| panic!("no inline OBJ {f}"));
+        TriMesh::parse_obj(&text, Path::new(f))
+    })
+}
+
+pub fn render(scene: &Scene, model: Model, spp: u32, seed: u64) -> Transient {
+    let geom = SceneGeometry::build(scene);
+    transport::render(scene, &geom, &RenderOptions { model, spp, seed }, None).expect("render")
+}
+
+/// A square of side `side` centred at `c` in the plane z = c.z, facing -z (the wall).
+pub fn square_obj(c: [f32; 3], side: f32) -> String {
+    let h = side / 2.0;
+    format!(
+        "v {} {} {z}\nv {} {} {z}\nv {} {} {z}\nv {} {} {z}\nf 1 4 3 2\n",
+        c[0] - h, c[1] - h, c[0] + h, c[1] - h, c[0] + h, c[1] + h, c[0] - h, c[1] + h,
+        z = c[2]
+    )
+}
+
+/// Per-measurement time-integrated values.
+pub fn totals(t: &Transient) -> Vec<f64> {
+    t.data.chunks(t.bins()).map(|c| c.iter().map(|&v| v as f64).sum()).collect()
+}
+
+/// Mean transient over `seeds` renders and the standard error of each element.
+pub struct Estimate {
+    pub mean: Vec<f64>,
+    pub stderr: Vec<f64>,
+    pub bins: usize,
+}
+
+pub fn estimate(scene: &Scene, model: Model, spp: u32, seeds: u64) -> Estimate {
+    let runs: Vec<Transient> = (0..seeds).map(|s| render(scene, model, spp, 1000 + s)).collect();
+    let n = runs[0].data.len();
+    let k = seeds as f64;
+    let mut mean = vec![0.0; n];
+    let mut sq = vec![0.0; n];
+    for r in &runs {
+        for (i, &v) in r.data.iter().enumerate() {
+            mean[i] += v as f64 / k;
+            sq[i] += (v as f64) * (v as f64) / k;
+        }
+    }
+    let stderr = mean
+        .iter()
+        .zip(&sq)
+        .map(|(m, s)| ((s - m * m).max(0.0) * k / (k - 1.0) / k).sqrt())
+        .collect();
+    Estimate { mean, stderr, bins: runs[0].bins() }
+}
+
+impl Estimate {
+    /// Total energy and its standard error (from per-seed totals).
+    pub fn total(&self) -> f64 {
+        self.mean.iter().sum()
+    }
+}
+
+/// Total energy over seeds: (mean, standard error of the mean).
+pub fn total_energy(scene: &Scene, model: Model, spp: u32, seeds: u64) -> (f64, f64) {
+    let t: Vec<f64> = (0..seeds)
+        .map(|s| render(scene, model, spp, 5000 + s).data.iter().map(|&v| v as f64).sum())
+        .collect();
+    let k = seeds as f64;
+    let m = t.iter().sum::<f64>() / k;
+    let var = t.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / (k - 1.0);
+    (m, (var / k).sqrt())
+}

@@ -1,0 +1,111 @@
+//! Radiometry against a closed form (DESIGN §2): a 2 cm Lambertian square facing the
+//! wall at 1 m. For a patch this small the three-bounce integral is the point-patch
+//! formula `P (ρ_w/π) (ρ/π) G(x_l, x) G(x, x_s) (ρ_w/π) A` at OPL `|x_l-x| + |x-x_s|`.
+
+mod common;
+use common::*;
+use glam::Vec3;
+use std::f64::consts::PI;
+use umbra::scene::{LaserEmission, Model, Scene};
+
+const PATCH_C: [f32; 3] = [0.1, 0.05, 1.0];
+const SIDE: f32 = 0.02;
+
+fn patch_scene(capture: &str, laser: &str, filter: &str) -> Scene {
+    let toml = format!(
+        r#"
+capture_type = "{capture}"
+[wall]
+size = [2.0, 2.0]
+albedo = 0.8
+[laser]
+origin = [0.4, -0.3, 1.2]
+target = [0.3, -0.2, 0.0]
+{laser}
+[scan]
+resolution = [4, 4]
+size = [1.0, 1.0]
+[film]
+temporal_bins = 400
+bin_width_opl = 0.005
+start_opl = 1.5
+[[objects]]
+file = "patch.obj"
+albedo = 0.7
+[render]
+{filter}
+"#
+    );
+    scene(&toml, &[("patch.obj", &square_obj(PATCH_C, SIDE))])
+}
+
+/// The point-patch formula per measurement: (value, OPL).
+fn closed_form(s: &Scene) -> Vec<(f64, f64)> {
+    let x = Vec3::from(PATCH_C);
+    let n = Vec3::new(0.0, 0.0, -1.0);
+    let nw = s.wall.normal();
+    let area = (SIDE * SIDE) as f64;
+    let g = |a: Vec3, na: Vec3, b: Vec3, nb: Vec3| {
+        let d = b - a;
+        let r2 = d.length_squared() as f64;
+        let w = d.normalize();
+        (na.dot(w) as f64) * (-nb.dot(w) as f64) / r2
+    };
+    (0..s.num_measurements())
+        .map(|m| {
+            let (xl, xs) = s.measurement_points(m);
+            let p = match s.laser.emission {
+                LaserEmission::Power(p) => p as f64,
+                LaserEmission::Irradiance { irradiance, .. } => {
+                    let d = s.laser.origin - xl;
+                    PI * irradiance as f64 * (nw.dot(d.normalize()) as f64) / d.length_squared() as f64
+                }
+            };
+            let rw = s.wall.albedo as f64 / PI;
+            let rho = s.objects[0].albedo as f64 / PI;
+            let v = p * rw * rho * g(xl, nw, x, n) * g(x, n, xs, nw) * rw * area;
+            (v, ((xl - x).length() + (x - xs).length()) as f64)
+        })
+        .collect()
+}
+
+fn check(s: &Scene, model: Model, spp: u32) {
+    let t = render(s, model, spp, 7);
+    let got = totals(&t);
+    let want = closed_form(s);
+    let (mut sum_got, mut sum_want) = (0.0, 0.0);
+    for (m, ((g, (w, opl)), c)) in got.iter().zip(&want).zip(t.data.chunks(t.bins())).enumerate() {
+        let rel = (g - w) / w;
+        assert!(rel.abs() < 0.01, "{model:?} {:?} point {m}: got {g:e}, formula {w:e} ({:+.3} %)", s.capture, rel * 100.0);
+        // The pulse sits in the bin that holds the formula's OPL.
+        let peak = c.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).unwrap().0;
+        let want_bin = ((opl - s.film.start_opl as f64) / s.film.bin_width_opl as f64).floor() as usize;
+        assert!(peak.abs_diff(want_bin) <= 1, "point {m}: peak bin {peak}, formula bin {want_bin}");
+        sum_got += g;
+        sum_want += w;
+    }
+    assert!(((sum_got - sum_want) / sum_want).abs() < 0.01);
+}
+
+#[test]
+fn patch_single_mc3_and_path() {
+    let s = patch_scene("single", "power = 2.0", "");
+    check(&s, Model::Mc3, 1024);
+    let s = patch_scene("single", "power = 2.0", "filter_bounces = 3");
+    check(&s, Model::Path, 4096);
+}
+
+#[test]
+fn patch_confocal_mc3_and_path_with_irradiance_laser() {
+    let s = patch_scene("confocal", "irradiance = 5.0\nfov = 0.2", "");
+    check(&s, Model::Mc3, 1024);
+    let s = patch_scene("confocal", "irradiance = 5.0\nfov = 0.2", "filter_bounces = 3");
+    check(&s, Model::Path, 4096);
+}
+
+#[test]
+fn patch_exhaustive_matches_formula() {
+    let s = patch_scene("exhaustive", "power = 1.0", "");
+    assert_eq!(s.num_measurements(), 256);
+    check(&s, Model::Mc3, 512);
+}

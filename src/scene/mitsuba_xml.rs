@@ -192,10 +192,15 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
     };
     let laser_sampling = p.bool(cx, "nlos_laser_sampling")?.unwrap_or(false);
     let hg = p.bool(cx, "nlos_hidden_geometry_sampling")?.unwrap_or(false);
-    let hg_rr = p.bool(cx, "nlos_hidden_geometry_sampling_do_rroulette")?.unwrap_or(false);
-    let hg_wall = p
-        .bool(cx, "nlos_hidden_geometry_sampling_includes_relay_wall")?
-        .unwrap_or(false);
+    // mitransient ignores these two unless hidden-geometry sampling is on.
+    let hg_rr = hg && p.bool(cx, "nlos_hidden_geometry_sampling_do_rroulette")?.unwrap_or(false);
+    let hg_wall = hg && p.bool(cx, "nlos_hidden_geometry_sampling_includes_relay_wall")?.unwrap_or(false);
+    if hg_rr {
+        cx.warn(p.line_of("nlos_hidden_geometry_sampling_do_rroulette"), "nlos_hidden_geometry_sampling_do_rroulette = true: mitransient 1.3.1 then picks hidden-geometry or BSDF sampling 50/50 without MIS and doubles its result (a mitransient bug); Umbra combines the two without that bias");
+    }
+    if !laser_sampling {
+        cx.warn(p.line_of("nlos_laser_sampling"), "nlos_laser_sampling = false: mitransient then lights the projector's whole footprint (fov), whose scale is not comparable with laser sampling on; Umbra imports a point laser spot, which its path model reaches only by laser sampling");
+    }
     let discard = p.bool(cx, "discard_direct_paths")?.unwrap_or(false);
     if discard && !laser_sampling {
         cx.warn(p.line_of("discard_direct_paths"), "discard_direct_paths with nlos_laser_sampling = false: mitransient then also drops three-bounce paths (it tests depth > 2 at the light connection); Umbra drops only laser-spot-to-sensor-point paths");
@@ -203,6 +208,17 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
     let afl = p.bool(cx, "account_first_and_last_bounces")?.unwrap_or(false);
     if p.bool(cx, "force_equal_illumination_scanning")? == Some(false) {
         return Err(cx.err(p.line_of("force_equal_illumination_scanning"), "force_equal_illumination_scanning = false is not supported: Umbra's exhaustive capture lights the scan grid's points"));
+    }
+    let _scan_fov = p.float(cx, "illumination_scan_fov")?; // Only used when the above is false.
+    if p.bool(cx, "camera_unwarp")? == Some(true) {
+        return Err(cx.err(p.line_of("camera_unwarp"), "camera_unwarp = true: mitransient refuses it with transient_nlos_path (use account_first_and_last_bounces)"));
+    }
+    // No effect on a transient_nlos_path render with a projector.
+    let _ = (p.bool(cx, "hide_emitters")?, p.bool(cx, "discard_direct_light")?);
+    if let Some((d, line)) = p.int(cx, "nlos_hidden_geometry_sampling_max_depth")? {
+        if d != -1 {
+            return Err(cx.err(line, format!("nlos_hidden_geometry_sampling_max_depth = {d}: Umbra has no depth limit for hidden-geometry sampling (only -1 is supported)")));
+        }
     }
 
     let (max_depth, md_line) = p.int(cx, "max_depth")?.unwrap_or((6, node.line));
@@ -349,9 +365,10 @@ fn shape(cx: &mut Cx, node: &Node, bsdfs: &HashMap<&str, &Node>, base_dir: &Path
     };
     let det = Mat3::from_mat4(m).determinant();
     let name = |fallback: String| node.attr("id").map(str::to_string).unwrap_or(fallback);
-    let (mut mesh, name) = if kind == "obj" {
+    let (mut mesh, name, reverse) = if kind == "obj" {
         let (file, fline) = p.string(cx, "filename")?.ok_or_else(|| cx.err(node.line, "<shape type=\"obj\"> needs <string name=\"filename\" value=\"..\"/>"))?;
         let face_normals = p.bool(cx, "face_normals")?.unwrap_or(false);
+        let flip = p.bool(cx, "flip_normals")?.unwrap_or(false);
         let sensor = p.object(cx, &["sensor"])?;
         if let Some(s) = sensor {
             return Err(cx.err(s.line, "the nlos_capture_meter must sit in a <shape type=\"rectangle\"> (Umbra's relay wall is a rectangle)"));
@@ -360,12 +377,14 @@ fn shape(cx: &mut Cx, node: &Node, bsdfs: &HashMap<&str, &Node>, base_dir: &Path
         let path = base_dir.join(file);
         let text = std::fs::read_to_string(&path).map_err(|e| cx.err(fline, format!("<shape type=\"obj\">: cannot read '{}': {e}", path.display())))?;
         let mesh = TriMesh::parse_obj(&text, &path)?;
-        if !face_normals && text.lines().any(|l| l.trim_start().starts_with("vn ")) {
-            cx.warn(node.line, format!("{file} has vertex normals, which Mitsuba uses for shading (face_normals = false); Umbra always uses the triangles' geometric normals"));
+        let has_vn = text.lines().any(|l| l.trim_start().starts_with("vn "));
+        if !face_normals && (has_vn || !is_planar(&mesh)) {
+            cx.warn(node.line, format!("Mitsuba shades {file} with {} vertex normals (face_normals = false); Umbra uses the triangles' geometric normals: set <boolean name=\"face_normals\" value=\"true\"/> for the same result in both", if has_vn { "its" } else { "smoothed" }));
         }
         let stem = Path::new(file).file_stem().map(|s| s.to_string_lossy().into_owned());
-        (mesh, name(stem.unwrap_or_else(|| file.to_string())))
+        (mesh, name(stem.unwrap_or_else(|| file.to_string())), flip)
     } else {
+        let flip = p.bool(cx, "flip_normals")?.unwrap_or(false);
         if let Some(s) = p.object(cx, &["sensor"])? {
             let u = m.transform_vector3(Vec3::X * 2.0);
             let v = m.transform_vector3(Vec3::Y * 2.0);
@@ -378,8 +397,9 @@ fn shape(cx: &mut Cx, node: &Node, bsdfs: &HashMap<&str, &Node>, base_dir: &Path
             w.scan.center = center;
             w.scan.axis_u = u;
             w.scan.axis_v = v;
-            // Mitsuba's normal is to_world^{-T} · z: flip axis_u when to_world mirrors.
-            let axis_u = if det < 0.0 { -u } else { u };
+            // Mitsuba's normal is to_world^{-T} · z (negated by flip_normals): flip
+            // axis_u when that is opposite to u × v.
+            let axis_u = if (det < 0.0) != flip { -u } else { u };
             w.wall = RelayWall { center, axis_u, axis_v: v, albedo };
             return Ok(Shape::Wall(Box::new(w)));
         }
@@ -395,10 +415,11 @@ fn shape(cx: &mut Cx, node: &Node, bsdfs: &HashMap<&str, &Node>, base_dir: &Path
             triangles: vec![[0, 1, 2], [0, 2, 3]],
             vertex_albedo: None,
         };
-        (mesh, name(format!("rectangle@{}", node.line)))
+        // Keep the front where Mitsuba has it (to_world^{-T} · z): reverse the
+        // winding for a mirroring to_world.
+        (mesh, name(format!("rectangle@{}", node.line)), (det < 0.0) != flip)
     };
-    if kind == "rectangle" && det < 0.0 {
-        // Keep the front where Mitsuba has it (to_world^{-T} · z).
+    if reverse {
         for t in &mut mesh.triangles {
             t.swap(1, 2);
         }
@@ -417,6 +438,17 @@ fn shape(cx: &mut Cx, node: &Node, bsdfs: &HashMap<&str, &Node>, base_dir: &Path
         albedo,
         two_sided,
     }))
+}
+
+/// Whether all triangles of `mesh` have the same normal (then Mitsuba's smoothed vertex
+/// normals equal the face normals).
+fn is_planar(mesh: &TriMesh) -> bool {
+    let normal = |t: usize| {
+        let [a, b, c] = mesh.triangle(t);
+        (b - a).cross(c - a).normalize_or_zero()
+    };
+    let n0 = normal(0);
+    (1..mesh.triangles.len()).all(|t| normal(t).dot(n0) > 1.0 - 1e-5)
 }
 
 /// `(albedo, two_sided)` of a `<bsdf>` or a `<ref id="..">` to a top-level one.

@@ -16,12 +16,10 @@ pub fn scene(toml: &str, objs: &[(&str, &str)]) -> Scene {
 pub fn try_scene(toml: &str, objs: &[(&str, &str)]) -> umbra::Result<Scene> {
     let objs: Vec<(String, String)> = objs.iter().map(|(a, b)| (a.to_string(), b.to_string())).collect();
     toml_format::parse(toml, Path::new("test.toml"), &move |f| {
-        let text = objs
-            .iter()
-            .find(|(n, _)| n == f)
-            .map(|(_, t)| t.clone())
-            .unwrap_or_else(|| panic!("no inline OBJ {f}"));
-        TriMesh::parse_obj(&text, Path::new(f))
+        match objs.iter().find(|(n, _)| n == f) {
+            Some((_, text)) => TriMesh::parse_obj(text, Path::new(f)),
+            None => Err(umbra::Error::scene(Path::new(f), "no such inline OBJ")),
+        }
     })
 }
 

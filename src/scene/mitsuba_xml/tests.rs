@@ -74,6 +74,7 @@ fn ytal_example_loads() {
         Techniques {
             laser_sampling: true,
             hidden_geometry_sampling: true,
+            hidden_geometry_includes_wall: false,
             bsdf_sampling: false
         }
     );
@@ -295,4 +296,39 @@ fn hidden_rectangle_and_gaussian_kernel() {
     let [a, b, c] = r.mesh.triangle(0);
     assert!((b - a).cross(c - a).z > 0.0);
     assert!(s.warnings.iter().any(|w| w.contains("gaussian")), "{:?}", s.warnings);
+}
+
+#[test]
+fn flip_normals_and_smooth_normal_warning() {
+    // A hidden rectangle facing away from the wall unless flipped.
+    let plate = r#"<shape type="rectangle"><transform name="to_world"><scale value="0.1"/><translate z="0.5"/></transform>FLIP</shape>"#;
+    let with = |flip: &str| edit("    <!-- L -->", &plate.replace("FLIP", flip));
+    let front = |s: &Scene| {
+        let [a, b, c] = s.objects[0].mesh.triangle(0);
+        (b - a).cross(c - a).z
+    };
+    assert!(front(&parse_str(&with("")).unwrap()) > 0.0);
+    let flipped = with(r#"<boolean name="flip_normals" value="true"/>"#);
+    assert!(front(&parse_str(&flipped).unwrap()) < 0.0);
+    // A flipped relay wall faces -z: the laser and detector are then behind it.
+    let wall = edit(
+        r#"<sensor type="nlos_capture_meter">"#,
+        r#"<boolean name="flip_normals" value="true"/><sensor type="nlos_capture_meter">"#,
+    );
+    let (line, msg) = err_line(parse_str(&wall));
+    assert_eq!(line, 16, "{msg}");
+    assert!(msg.contains("behind"), "{msg}");
+    // A bent OBJ without face_normals: Mitsuba would shade it with smoothed normals.
+    let dir = std::env::temp_dir().join(format!("umbra_xml_test_{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("bent.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\n").unwrap();
+    let t = ytal_text()
+        .replace("./L.obj", "bent.obj")
+        .replace(r#"<scale x="1.0" y="1.0" z="1.0"/>"#, r#"<scale value="0.1"/>"#);
+    let s = parse(&t, Path::new("t.xml"), &dir).unwrap();
+    assert!(s.warnings.iter().any(|w| w.contains("smoothed")), "{:?}", s.warnings);
+    let t = t.replace(r#"<string name="filename" value="bent.obj"/>"#, r#"<string name="filename" value="bent.obj"/><boolean name="face_normals" value="true"/>"#);
+    let s = parse(&t, Path::new("t.xml"), &dir).unwrap();
+    assert!(!s.warnings.iter().any(|w| w.contains("smoothed")), "{:?}", s.warnings);
+    std::fs::remove_dir_all(&dir).ok();
 }

@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Sets up everything the tests need on a fresh machine, then runs all of them:
+#   1. LLVM 19 (Debian libllvm19) for Dr.Jit's CPU backend (mitransient's llvm_ad_mono);
+#   2. a Python venv in .venv with the peers (python/requirements-test.txt);
+#   3. cargo test --release (Rust unit, integration and fuzz tests);
+#   4. the Python suite (python/tests): Umbra against mitransient.
+# Each install step runs only when its check fails, so reruns are fast.
+set -euo pipefail
+cd "$(dirname "$0")"
+
+if ! ls /usr/lib/x86_64-linux-gnu/libLLVM.so.19* >/dev/null 2>&1; then
+    echo "== installing libllvm19 (apt)"
+    SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+    $SUDO apt-get update -qq && $SUDO apt-get install -y -qq libllvm19
+fi
+export DRJIT_LIBLLVM_PATH="${DRJIT_LIBLLVM_PATH:-$(ls /usr/lib/x86_64-linux-gnu/libLLVM.so.19* | head -n1)}"
+
+if ! .venv/bin/python -c "import mitsuba, drjit, mitransient, numpy, pytest, h5py" 2>/dev/null; then
+    echo "== creating .venv with the peers"
+    python3 -m venv .venv
+    .venv/bin/pip install -q --upgrade pip
+    .venv/bin/pip install -q -r python/requirements-test.txt
+fi
+
+echo "== cargo test --release"
+cargo build --release --locked
+cargo test --release --locked
+
+echo "== python tests"
+UMBRA_BIN="$PWD/target/release/umbra" .venv/bin/python -m pytest -q python/tests "$@"

@@ -1,0 +1,145 @@
+//! Bad scene input gives one clear error naming the file and the field or line, never
+//! a panic; the TOML and OBJ readers survive mutated input (proptest).
+
+mod common;
+use common::*;
+use proptest::prelude::*;
+use std::path::Path;
+use std::process::Command;
+use umbra::geometry::mesh::TriMesh;
+
+const GOOD: &str = r#"
+capture_type = "single"
+[wall]
+size = [2.0, 2.0]
+[laser]
+origin = [0.0, 0.0, 1.0]
+target = [0.1, 0.0, 0.0]
+[scan]
+resolution = [2, 2]
+[film]
+temporal_bins = 10
+bin_width_opl = 0.1
+[[objects]]
+file = "sq.obj"
+transform = { translate = [0.0, 0.0, 1.0] }
+"#;
+
+fn err_of(toml: &str) -> String {
+    let sq = square_obj([0.0, 0.0, 0.0], 0.2);
+    match try_scene(toml, &[("sq.obj", &sq)]) {
+        Ok(_) => panic!("accepted bad input:\n{toml}"),
+        Err(e) => e.to_string(),
+    }
+}
+
+#[test]
+fn good_scene_loads() {
+    let sq = square_obj([0.0, 0.0, 0.0], 0.2);
+    try_scene(GOOD, &[("sq.obj", &sq)]).unwrap();
+}
+
+#[test]
+fn errors_name_file_and_field() {
+    let cases = [
+        (GOOD.replace("temporal_bins = 10", "temporal_bins = -4"), "test.toml: film.temporal_bins: must be a positive count, got -4"),
+        (GOOD.replace("origin = [0.0, 0.0, 1.0]", "origin = [0.0, 0.0, -1.0]"), "test.toml: laser.origin: the laser is behind"),
+        (GOOD.replace("translate = [0.0, 0.0, 1.0]", "translate = [0.0, nan, 1.0]"), "test.toml: objects[0].transform: translate must be finite"),
+        (GOOD.replace("bin_width_opl = 0.1", "bin_width_opl = 0.0"), "test.toml: film.bin_width_opl: must be > 0"),
+        (GOOD.replace("capture_type = \"single\"", "capture_type = \"sweep\""), "test.toml: capture_type: 'sweep' is not one of"),
+        (GOOD.replace("target = [0.1, 0.0, 0.0]", "target = [0.1, 0.0, 0.5]"), "test.toml: laser.target: the laser target"),
+        (GOOD.replace("[film]", "[film]\nkernel = \"gaussian\""), "test.toml: film.sigma_opl: kernel = \"gaussian\" needs sigma_opl"),
+        (format!("{GOOD}\n[render]\nspp = 0\n"), "test.toml: render.spp: must be at least 1"),
+    ];
+    for (toml, want) in cases {
+        let e = err_of(&toml);
+        assert!(e.starts_with(want), "got: {e}\nwant: {want}");
+    }
+    // A typo is an error with its line, not a silent default.
+    let e = err_of(&GOOD.replace("bin_width_opl", "bin_widht_opl"));
+    assert!(e.starts_with("test.toml:") && e.contains("bin_widht_opl"), "{e}");
+    let e = err_of(&GOOD.replace("[scan]", "[scan"));
+    assert!(e.starts_with("test.toml:8:"), "{e}");
+}
+
+#[test]
+fn missing_and_malformed_files() {
+    let dir = std::env::temp_dir().join(format!("umbra-bad-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // Missing scene file.
+    let e = umbra::Scene::load(&dir.join("nope.toml")).unwrap_err().to_string();
+    assert!(e.contains("nope.toml") && e.contains("No such file"), "{e}");
+    // Missing OBJ named by the scene.
+    std::fs::write(dir.join("s.toml"), GOOD.replace("sq.obj", "missing.obj")).unwrap();
+    let e = umbra::Scene::load(&dir.join("s.toml")).unwrap_err().to_string();
+    assert!(e.contains("missing.obj"), "{e}");
+    // Malformed OBJ: the line is named.
+    std::fs::write(dir.join("s.toml"), GOOD).unwrap();
+    std::fs::write(dir.join("sq.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 zero\nf 1 2 3\n").unwrap();
+    let e = umbra::Scene::load(&dir.join("s.toml")).unwrap_err().to_string();
+    assert!(e.contains("sq.obj:3:") && e.contains("zero"), "{e}");
+    // Only degenerate faces.
+    std::fs::write(dir.join("sq.obj"), "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n").unwrap();
+    let e = umbra::Scene::load(&dir.join("s.toml")).unwrap_err().to_string();
+    assert!(e.contains("objects[0]") && e.contains("no non-degenerate"), "{e}");
+    // Unknown extension.
+    let e = umbra::Scene::load(&dir.join("s.json")).unwrap_err().to_string();
+    assert!(e.contains("s.json") && e.contains(".toml"), "{e}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn cli_reports_errors_without_panicking() {
+    let out = Command::new(env!("CARGO_BIN_EXE_umbra"))
+        .args(["render", "/nonexistent/scene.toml", "-o", "/tmp/x.npy"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.starts_with("error: /nonexistent/scene.toml:"), "{err}");
+    assert!(!err.contains("panicked"));
+    let out = Command::new(env!("CARGO_BIN_EXE_umbra"))
+        .args(["render", "--spp", "0", "-o", "/tmp/x.npy"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--spp"));
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 400, .. ProptestConfig::default() })]
+
+    /// Random edits of a good TOML scene (deletions, duplications, random ASCII):
+    /// the reader returns Ok or Err, never panics.
+    #[test]
+    fn toml_reader_never_panics(edits in prop::collection::vec((0usize..400, 0usize..12, "[ -~\n]{0,8}"), 1..6)) {
+        let mut text = GOOD.to_string();
+        for (at, len, ins) in edits {
+            let at = at.min(text.len());
+            let end = (at + len).min(text.len());
+            if text.is_char_boundary(at) && text.is_char_boundary(end) {
+                text.replace_range(at..end, &ins);
+            }
+        }
+        let sq = square_obj([0.0, 0.0, 0.0], 0.2);
+        let _ = try_scene(&text, &[("sq.obj", &sq)]);
+    }
+
+    /// Random OBJ text built from plausible tokens: never a panic.
+    #[test]
+    fn obj_reader_never_panics(lines in prop::collection::vec(
+        prop_oneof![
+            "v( -?[0-9]{1,3}(\\.[0-9]{1,3})?){2,4}",
+            "f( -?[0-9]{1,2}(/[0-9]{0,2}){0,2}){1,5}",
+            "(vn|vt|o|g|s|usemtl|mtllib)( [a-z0-9.]{1,5}){0,3}",
+            "[ -~]{0,20}",
+        ], 0..30)) {
+        let text = lines.join("\n");
+        if let Ok(mut m) = TriMesh::parse_obj(&text, Path::new("fuzz.obj")) {
+            m.drop_degenerate();
+            for t in &m.triangles {
+                prop_assert!(t.iter().all(|&i| (i as usize) < m.positions.len()));
+            }
+        }
+    }
+}

@@ -115,6 +115,14 @@ fn ablation_multibounce_each_technique() {
         8,
     );
     assert_same("6 bounces: BSDF only vs MIS", bsdf_only, both);
+    // With the wall in hidden-geometry sampling, it alone reaches every path again.
+    let hg_wall = total_energy(
+        &t_scene("single", &format!("{r}\nbsdf_sampling = false\nhidden_geometry_includes_wall = true")),
+        Model::Path,
+        65536,
+        8,
+    );
+    assert_same("6 bounces: hidden-geometry + wall only vs MIS", hg_wall, both);
 }
 
 #[test]

@@ -85,6 +85,74 @@ proptest! {
     }
 }
 
+/// Byte ranges of the attribute values (inside the quotes) of the y-tal scene.
+fn value_spans() -> Vec<(usize, usize)> {
+    let t = ytal_xml();
+    let quotes: Vec<usize> = (0..t.len()).filter(|&i| t[i] == b'"').collect();
+    quotes.chunks_exact(2).map(|q| (q[0] + 1, q[1])).collect()
+}
+
+/// Values that reach the scene builder's checks.
+fn value() -> impl Strategy<Value = String> {
+    prop_oneof![
+        "-?[0-9]{1,3}(\\.[0-9]{1,3})?",
+        "[0-9., -]{0,12}",
+        "[a-z_]{0,10}",
+        prop::sample::select(vec![
+            "",
+            "nan",
+            "inf",
+            "-1",
+            "0",
+            "1e30",
+            "-1e-30",
+            "true",
+            "false",
+            "box",
+            "gaussian",
+            "single",
+            "confocal",
+            "exhaustive",
+            "2",
+            "3",
+            "0, 0, 1",
+            "1, 2",
+            "$x",
+            "a:1",
+            "twosided",
+            "rectangle",
+            "obj",
+            "lookat",
+            "L.obj",
+            "/",
+            "4294967296",
+        ])
+        .prop_map(str::to_string),
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 400, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// Well-formed XML with random attribute values: exercises the scene builder.
+    #[test]
+    fn value_edits_never_panic(edits in prop::collection::vec((any::<prop::sample::Index>(), value()), 1..4)) {
+        let spans = value_spans();
+        let mut chosen: Vec<(usize, usize, String)> = edits
+            .into_iter()
+            .map(|(i, v)| { let (a, b) = spans[i.index(spans.len())]; (a, b, v) })
+            .collect();
+        chosen.sort_by_key(|c| std::cmp::Reverse(c.0));
+        chosen.dedup_by_key(|c| c.0);
+        let mut bytes = ytal_xml().to_vec();
+        for (a, b, v) in chosen {
+            bytes.splice(a..b, v.bytes());
+        }
+        let text = String::from_utf8(bytes).unwrap();
+        let _ = mitsuba_xml::parse(&text, Path::new("fuzz.xml"), &ytal_dir());
+    }
+}
+
 #[test]
 fn unmodified_scene_parses() {
     let text = std::str::from_utf8(ytal_xml()).unwrap();

@@ -60,7 +60,10 @@ pub fn parse(text: &str, origin: &Path, base_dir: &Path) -> Result<Scene> {
         warnings: Vec::new(),
     };
     if root.tag != "scene" {
-        return Err(cx.err(root.line, format!("the root element must be <scene>, not <{}>", root.tag)));
+        return Err(cx.err(
+            root.line,
+            format!("the root element must be <scene>, not <{}>", root.tag),
+        ));
     }
     if root.attr("version").is_none() {
         return Err(cx.err(root.line, "<scene> needs a version attribute"));
@@ -99,7 +102,10 @@ pub fn parse(text: &str, origin: &Path, base_dir: &Path) -> Result<Scene> {
         }
     }
     let integ_node = integrator.ok_or_else(|| {
-        Error::scene(origin, "no <integrator type=\"transient_nlos_path\">: Umbra imports mitransient NLOS scenes")
+        Error::scene(
+            origin,
+            "no <integrator type=\"transient_nlos_path\">: Umbra imports mitransient NLOS scenes",
+        )
     })?;
     let integ = integrator_cfg(&mut cx, integ_node)?;
 
@@ -120,7 +126,8 @@ pub fn parse(text: &str, origin: &Path, base_dir: &Path) -> Result<Scene> {
     let (w, _) = wall.ok_or_else(|| {
         Error::scene(origin, "no relay wall: a <shape type=\"rectangle\"> must carry the <sensor type=\"nlos_capture_meter\">")
     })?;
-    let em_node = emitter.ok_or_else(|| Error::scene(origin, "no laser: add an <emitter type=\"projector\">"))?;
+    let em_node = emitter
+        .ok_or_else(|| Error::scene(origin, "no laser: add an <emitter type=\"projector\">"))?;
     let laser = projector(&mut cx, em_node, &w.wall, integ.capture)?;
 
     if let Some((afl, line)) = w.sensor_afl {
@@ -137,7 +144,9 @@ pub fn parse(text: &str, origin: &Path, base_dir: &Path) -> Result<Scene> {
     }
 
     let scene = Scene {
-        detector: Detector { origin: w.sensor_origin },
+        detector: Detector {
+            origin: w.sensor_origin,
+        },
         wall: w.wall,
         laser,
         scan: w.scan,
@@ -191,10 +200,16 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
         }
     };
     let laser_sampling = p.bool(cx, "nlos_laser_sampling")?.unwrap_or(false);
-    let hg = p.bool(cx, "nlos_hidden_geometry_sampling")?.unwrap_or(false);
+    let hg = p
+        .bool(cx, "nlos_hidden_geometry_sampling")?
+        .unwrap_or(false);
     // mitransient ignores these two unless hidden-geometry sampling is on.
-    let hg_rr = hg && p.bool(cx, "nlos_hidden_geometry_sampling_do_rroulette")?.unwrap_or(false);
-    let hg_wall = hg && p.bool(cx, "nlos_hidden_geometry_sampling_includes_relay_wall")?.unwrap_or(false);
+    let hg_rr = hg
+        && p.bool(cx, "nlos_hidden_geometry_sampling_do_rroulette")?
+            .unwrap_or(false);
+    let hg_wall = hg
+        && p.bool(cx, "nlos_hidden_geometry_sampling_includes_relay_wall")?
+            .unwrap_or(false);
     if hg_rr {
         cx.warn(p.line_of("nlos_hidden_geometry_sampling_do_rroulette"), "nlos_hidden_geometry_sampling_do_rroulette = true: mitransient 1.3.1 then picks hidden-geometry or BSDF sampling 50/50 without MIS and doubles its result (a mitransient bug); Umbra combines the two without that bias");
     }
@@ -205,7 +220,9 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
     if discard && !laser_sampling {
         cx.warn(p.line_of("discard_direct_paths"), "discard_direct_paths with nlos_laser_sampling = false: mitransient then also drops three-bounce paths (it tests depth > 2 at the light connection); Umbra drops only laser-spot-to-sensor-point paths");
     }
-    let afl = p.bool(cx, "account_first_and_last_bounces")?.unwrap_or(false);
+    let afl = p
+        .bool(cx, "account_first_and_last_bounces")?
+        .unwrap_or(false);
     if p.bool(cx, "force_equal_illumination_scanning")? == Some(false) {
         return Err(cx.err(p.line_of("force_equal_illumination_scanning"), "force_equal_illumination_scanning = false is not supported: Umbra's exhaustive capture lights the scan grid's points"));
     }
@@ -214,7 +231,10 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
         return Err(cx.err(p.line_of("camera_unwarp"), "camera_unwarp = true: mitransient refuses it with transient_nlos_path (use account_first_and_last_bounces)"));
     }
     // No effect on a transient_nlos_path render with a projector.
-    let _ = (p.bool(cx, "hide_emitters")?, p.bool(cx, "discard_direct_light")?);
+    let _ = (
+        p.bool(cx, "hide_emitters")?,
+        p.bool(cx, "discard_direct_light")?,
+    );
     if let Some((d, line)) = p.int(cx, "nlos_hidden_geometry_sampling_max_depth")? {
         if d != -1 {
             return Err(cx.err(line, format!("nlos_hidden_geometry_sampling_max_depth = {d}: Umbra has no depth limit for hidden-geometry sampling (only -1 is supported)")));
@@ -226,13 +246,21 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
     let fb = p.int(cx, "filter_bounces")?;
     let fd = p.int(cx, "filter_depth")?;
     let filter_depth = match (fb, fd) {
-        (Some((b, l)), Some((d, _))) if b != -1 && d != -1 => return Err(cx.err(l, "give only one of filter_bounces and filter_depth (mitransient refuses both)")),
+        (Some((b, l)), Some((d, _))) if b != -1 && d != -1 => {
+            return Err(cx.err(
+                l,
+                "give only one of filter_bounces and filter_depth (mitransient refuses both)",
+            ))
+        }
         (Some((b, l)), _) if b != -1 => Some((b.saturating_add(1), l)), // mitransient: filter_depth = filter_bounces + 1
         (_, Some((d, l))) if d != -1 => Some((d, l)),
         _ => None,
     };
     if max_depth < -1 || max_depth == 0 {
-        return Err(cx.err(md_line, format!("max_depth must be -1 (unbounded) or positive, got {max_depth}")));
+        return Err(cx.err(
+            md_line,
+            format!("max_depth must be -1 (unbounded) or positive, got {max_depth}"),
+        ));
     }
     if let Some((d, l)) = filter_depth {
         if d < 1 {
@@ -240,7 +268,10 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
         }
     }
     if rr_depth <= 0 {
-        return Err(cx.err(rr_line, format!("rr_depth must be positive, got {rr_depth}")));
+        return Err(cx.err(
+            rr_line,
+            format!("rr_depth must be positive, got {rr_depth}"),
+        ));
     }
     let (max_bounces, filter_bounces) =
         mitransient_depth_to_bounces(max_depth, filter_depth.map(|f| f.0), laser_sampling);
@@ -259,19 +290,30 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
     let kernel = match filter.map(|f| (f.0.trim(), f.1)) {
         None | Some(("", _)) | Some(("box", _)) => {
             if stddev.is_some() {
-                cx.warn(p.line_of("gaussian_stddev"), "gaussian_stddev is ignored: the temporal filter is a box");
+                cx.warn(
+                    p.line_of("gaussian_stddev"),
+                    "gaussian_stddev is ignored: the temporal filter is a box",
+                );
             }
             KernelSpec::Box
         }
         Some(("gaussian", line)) => {
             let sigma = stddev.ok_or_else(|| cx.err(line, "temporal_filter = gaussian needs <float name=\"gaussian_stddev\"> (metres of OPL)"))?;
             if sigma <= 0.0 {
-                return Err(cx.err(p.line_of("gaussian_stddev"), format!("gaussian_stddev must be > 0, got {sigma}")));
+                return Err(cx.err(
+                    p.line_of("gaussian_stddev"),
+                    format!("gaussian_stddev must be > 0, got {sigma}"),
+                ));
             }
             cx.warn(line, "temporal_filter = gaussian: Umbra smooths time with a Gaussian of gaussian_stddev metres of OPL; mitransient 1.3.1 reads this setting but always bins with a box");
             KernelSpec::Gaussian { sigma_opl: sigma }
         }
-        Some((f, line)) => return Err(cx.err(line, format!("temporal_filter '{f}' is not one of box, gaussian"))),
+        Some((f, line)) => {
+            return Err(cx.err(
+                line,
+                format!("temporal_filter '{f}' is not one of box, gaussian"),
+            ))
+        }
     };
     p.finish(cx)?;
     Ok(IntegratorCfg {
@@ -330,7 +372,10 @@ fn mitransient_depth_to_bounces(
     } else {
         to_u32(max_depth - extra)
     };
-    (max_bounces, filter_depth.map(|d| to_u32(d.saturating_add(extra))))
+    (
+        max_bounces,
+        filter_depth.map(|d| to_u32(d.saturating_add(extra))),
+    )
 }
 
 enum Shape {
@@ -356,7 +401,10 @@ fn shape(cx: &mut Cx, node: &Node, bsdfs: &HashMap<&str, &Node>, base_dir: &Path
     let mut p = Plugin::new(node, cx)?;
     let kind = p.kind();
     if kind != "obj" && kind != "rectangle" {
-        return Err(cx.err(node.line, format!("shape type '{kind}' is not supported (obj, rectangle)")));
+        return Err(cx.err(
+            node.line,
+            format!("shape type '{kind}' is not supported (obj, rectangle)"),
+        ));
     }
     let m = p.transform(cx, "to_world")?.unwrap_or(Mat4::IDENTITY);
     let (albedo, two_sided) = match p.object(cx, &["bsdf", "ref"])? {
@@ -366,7 +414,12 @@ fn shape(cx: &mut Cx, node: &Node, bsdfs: &HashMap<&str, &Node>, base_dir: &Path
     let det = Mat3::from_mat4(m).determinant();
     let name = |fallback: String| node.attr("id").map(str::to_string).unwrap_or(fallback);
     let (mut mesh, name, reverse) = if kind == "obj" {
-        let (file, fline) = p.string(cx, "filename")?.ok_or_else(|| cx.err(node.line, "<shape type=\"obj\"> needs <string name=\"filename\" value=\"..\"/>"))?;
+        let (file, fline) = p.string(cx, "filename")?.ok_or_else(|| {
+            cx.err(
+                node.line,
+                "<shape type=\"obj\"> needs <string name=\"filename\" value=\"..\"/>",
+            )
+        })?;
         let face_normals = p.bool(cx, "face_normals")?.unwrap_or(false);
         let flip = p.bool(cx, "flip_normals")?.unwrap_or(false);
         let sensor = p.object(cx, &["sensor"])?;
@@ -375,21 +428,34 @@ fn shape(cx: &mut Cx, node: &Node, bsdfs: &HashMap<&str, &Node>, base_dir: &Path
         }
         p.finish(cx)?;
         let path = base_dir.join(file);
-        let text = std::fs::read_to_string(&path).map_err(|e| cx.err(fline, format!("<shape type=\"obj\">: cannot read '{}': {e}", path.display())))?;
+        let text = std::fs::read_to_string(&path).map_err(|e| {
+            cx.err(
+                fline,
+                format!(
+                    "<shape type=\"obj\">: cannot read '{}': {e}",
+                    path.display()
+                ),
+            )
+        })?;
         let mesh = TriMesh::parse_obj(&text, &path)?;
         let has_vn = text.lines().any(|l| l.trim_start().starts_with("vn "));
         if !face_normals && (has_vn || !is_planar(&mesh)) {
             cx.warn(node.line, format!("Mitsuba shades {file} with {} vertex normals (face_normals = false); Umbra uses the triangles' geometric normals: set <boolean name=\"face_normals\" value=\"true\"/> for the same result in both", if has_vn { "its" } else { "smoothed" }));
         }
-        let stem = Path::new(file).file_stem().map(|s| s.to_string_lossy().into_owned());
+        let stem = Path::new(file)
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned());
         (mesh, name(stem.unwrap_or_else(|| file.to_string())), flip)
     } else {
         let flip = p.bool(cx, "flip_normals")?.unwrap_or(false);
         if let Some(s) = p.object(cx, &["sensor"])? {
             let u = m.transform_vector3(Vec3::X * 2.0);
             let v = m.transform_vector3(Vec3::Y * 2.0);
-            if !(u.cross(v).length() > 1e-12) {
-                return Err(cx.err(node.line, "the relay wall's to_world flattens it to zero area"));
+            if u.cross(v).length() <= 1e-12 {
+                return Err(cx.err(
+                    node.line,
+                    "the relay wall's to_world flattens it to zero area",
+                ));
             }
             p.finish(cx)?;
             let center = m.transform_point3(Vec3::ZERO);
@@ -400,7 +466,12 @@ fn shape(cx: &mut Cx, node: &Node, bsdfs: &HashMap<&str, &Node>, base_dir: &Path
             // Mitsuba's normal is to_world^{-T} · z (negated by flip_normals): flip
             // axis_u when that is opposite to u × v.
             let axis_u = if (det < 0.0) != flip { -u } else { u };
-            w.wall = RelayWall { center, axis_u, axis_v: v, albedo };
+            w.wall = RelayWall {
+                center,
+                axis_u,
+                axis_v: v,
+                albedo,
+            };
             return Ok(Shape::Wall(Box::new(w)));
         }
         p.finish(cx)?;
@@ -417,7 +488,11 @@ fn shape(cx: &mut Cx, node: &Node, bsdfs: &HashMap<&str, &Node>, base_dir: &Path
         };
         // Keep the front where Mitsuba has it (to_world^{-T} · z): reverse the
         // winding for a mirroring to_world.
-        (mesh, name(format!("rectangle@{}", node.line)), (det < 0.0) != flip)
+        (
+            mesh,
+            name(format!("rectangle@{}", node.line)),
+            (det < 0.0) != flip,
+        )
     };
     if reverse {
         for t in &mut mesh.triangles {
@@ -427,7 +502,10 @@ fn shape(cx: &mut Cx, node: &Node, bsdfs: &HashMap<&str, &Node>, base_dir: &Path
     mesh.transform(&Affine3A::from_mat4(m));
     let dropped = mesh.drop_degenerate();
     if dropped > 0 {
-        cx.warn(node.line, format!("{name}: dropped {dropped} degenerate triangle(s)"));
+        cx.warn(
+            node.line,
+            format!("{name}: dropped {dropped} degenerate triangle(s)"),
+        );
     }
     if mesh.triangles.is_empty() {
         return Err(cx.err(node.line, format!("{name} has no non-degenerate triangles")));
@@ -454,14 +532,24 @@ fn is_planar(mesh: &TriMesh) -> bool {
 /// `(albedo, two_sided)` of a `<bsdf>` or a `<ref id="..">` to a top-level one.
 fn bsdf(cx: &mut Cx, node: &Node, bsdfs: &HashMap<&str, &Node>, depth: u32) -> Result<(f32, bool)> {
     if depth > 4 {
-        return Err(cx.err(node.line, "BSDFs nested or referenced too deeply (a reference cycle?)"));
+        return Err(cx.err(
+            node.line,
+            "BSDFs nested or referenced too deeply (a reference cycle?)",
+        ));
     }
     if node.tag == "ref" {
         if let Some(a) = node.attrs.iter().find(|a| a.key != "id" && a.key != "name") {
             return Err(cx.err(a.line, format!("<ref>: unknown attribute '{}'", a.key)));
         }
-        let id = node.attr("id").ok_or_else(|| cx.err(node.line, "<ref> needs an id"))?;
-        let target = bsdfs.get(id).ok_or_else(|| cx.err(node.line, format!("<ref id=\"{id}\">: no top-level <bsdf id=\"{id}\">")))?;
+        let id = node
+            .attr("id")
+            .ok_or_else(|| cx.err(node.line, "<ref> needs an id"))?;
+        let target = bsdfs.get(id).ok_or_else(|| {
+            cx.err(
+                node.line,
+                format!("<ref id=\"{id}\">: no top-level <bsdf id=\"{id}\">"),
+            )
+        })?;
         return bsdf(cx, target, bsdfs, depth + 1);
     }
     let mut p = Plugin::new(node, cx)?;
@@ -486,42 +574,81 @@ fn bsdf(cx: &mut Cx, node: &Node, bsdfs: &HashMap<&str, &Node>, depth: u32) -> R
 fn sensor(cx: &mut Cx, node: &Node) -> Result<WallCfg> {
     let mut p = Plugin::new(node, cx)?;
     if p.kind() != "nlos_capture_meter" {
-        return Err(cx.err(node.line, format!("sensor type '{}' is not supported: the relay wall carries a nlos_capture_meter", p.kind())));
+        return Err(cx.err(
+            node.line,
+            format!(
+                "sensor type '{}' is not supported: the relay wall carries a nlos_capture_meter",
+                p.kind()
+            ),
+        ));
     }
     let sensor_origin = p.point(cx, "sensor_origin")?.unwrap_or(Vec3::ZERO);
-    let sensor_afl = p.bool(cx, "account_first_and_last_bounces")?.map(|b| (b, p.line_of("account_first_and_last_bounces")));
-    let film_node = p.object(cx, &["film"])?.ok_or_else(|| cx.err(node.line, "the nlos_capture_meter needs a <film type=\"transient_hdr_film\">"))?;
+    let sensor_afl = p
+        .bool(cx, "account_first_and_last_bounces")?
+        .map(|b| (b, p.line_of("account_first_and_last_bounces")));
+    let film_node = p.object(cx, &["film"])?.ok_or_else(|| {
+        cx.err(
+            node.line,
+            "the nlos_capture_meter needs a <film type=\"transient_hdr_film\">",
+        )
+    })?;
     let sampler = p.object(cx, &["sampler"])?;
     p.finish(cx)?;
 
     let mut f = Plugin::new(film_node, cx)?;
     if f.kind() != "transient_hdr_film" {
-        return Err(cx.err(film_node.line, format!("film type '{}' is not supported: use transient_hdr_film", f.kind())));
+        return Err(cx.err(
+            film_node.line,
+            format!(
+                "film type '{}' is not supported: use transient_hdr_film",
+                f.kind()
+            ),
+        ));
     }
     let count = |f: &mut Plugin, cx: &Cx, name: &str, default: Option<i64>| -> Result<u32> {
         let (v, line) = match (f.int(cx, name)?, default) {
             (Some(v), _) => v,
             (None, Some(d)) => (d, film_node.line),
-            (None, None) => return Err(cx.err(film_node.line, format!("the transient_hdr_film needs <integer name=\"{name}\">"))),
+            (None, None) => {
+                return Err(cx.err(
+                    film_node.line,
+                    format!("the transient_hdr_film needs <integer name=\"{name}\">"),
+                ))
+            }
         };
-        u32::try_from(v).ok().filter(|&v| v > 0).ok_or_else(|| cx.err(line, format!("{name} must be a positive count, got {v}")))
+        u32::try_from(v)
+            .ok()
+            .filter(|&v| v > 0)
+            .ok_or_else(|| cx.err(line, format!("{name} must be a positive count, got {v}")))
     };
     let nx = count(&mut f, cx, "width", None)?;
     let ny = count(&mut f, cx, "height", None)?;
     let temporal_bins = count(&mut f, cx, "temporal_bins", Some(2048))?;
     let bin_width_opl = f.float(cx, "bin_width_opl")?.unwrap_or(0.003);
     if bin_width_opl <= 0.0 {
-        return Err(cx.err(f.line_of("bin_width_opl"), format!("bin_width_opl must be > 0, got {bin_width_opl}")));
+        return Err(cx.err(
+            f.line_of("bin_width_opl"),
+            format!("bin_width_opl must be > 0, got {bin_width_opl}"),
+        ));
     }
     let start_opl = f.float(cx, "start_opl")?.unwrap_or(0.0);
-    let exhaustive_scan = (f.bool(cx, "exhaustive_scan")?.unwrap_or(false), f.line_of("exhaustive_scan"));
+    let exhaustive_scan = (
+        f.bool(cx, "exhaustive_scan")?.unwrap_or(false),
+        f.line_of("exhaustive_scan"),
+    );
     let lw = f.int(cx, "laser_scan_width")?.map(|v| v.0);
     let lh = f.int(cx, "laser_scan_height")?.map(|v| v.0);
     let laser_scan = (lw.zip(lh), f.line_of("laser_scan_width"));
     if let Some(r) = f.object(cx, &["rfilter"])? {
         let mut rf = Plugin::new(r, cx)?;
         if rf.kind() != "box" {
-            return Err(cx.err(r.line, format!("rfilter type '{}': mitransient's transient film supports only the box filter", rf.kind())));
+            return Err(cx.err(
+                r.line,
+                format!(
+                    "rfilter type '{}': mitransient's transient film supports only the box filter",
+                    rf.kind()
+                ),
+            ));
         }
         let _radius = rf.float(cx, "radius")?; // mitransient bins by pixel whatever the radius.
         rf.finish(cx)?;
@@ -532,21 +659,49 @@ fn sensor(cx: &mut Cx, node: &Node) -> Result<WallCfg> {
     if let Some(s) = sampler {
         let mut sp = Plugin::new(s, cx)?;
         if sp.kind() != "independent" {
-            return Err(cx.err(s.line, format!("sampler type '{}' is not supported: use independent", sp.kind())));
+            return Err(cx.err(
+                s.line,
+                format!(
+                    "sampler type '{}' is not supported: use independent",
+                    sp.kind()
+                ),
+            ));
         }
         if let Some((n, line)) = sp.int(cx, "sample_count")? {
-            spp = u32::try_from(n).ok().filter(|&n| n > 0).ok_or_else(|| cx.err(line, format!("sample_count must be a positive count, got {n}")))?;
+            spp = u32::try_from(n).ok().filter(|&n| n > 0).ok_or_else(|| {
+                cx.err(
+                    line,
+                    format!("sample_count must be a positive count, got {n}"),
+                )
+            })?;
         }
         if let Some((n, line)) = sp.int(cx, "seed")? {
-            seed = u64::try_from(n).map_err(|_| cx.err(line, format!("seed must be >= 0, got {n}")))?;
+            seed = u64::try_from(n)
+                .map_err(|_| cx.err(line, format!("seed must be >= 0, got {n}")))?;
         }
         sp.finish(cx)?;
     }
     let zero = Vec3::ZERO;
     Ok(WallCfg {
-        wall: RelayWall { center: zero, axis_u: zero, axis_v: zero, albedo: 0.0 },
-        scan: ScanGrid { nx, ny, center: zero, axis_u: zero, axis_v: zero },
-        film: FilmSpec { temporal_bins, bin_width_opl, start_opl, kernel: KernelSpec::Box },
+        wall: RelayWall {
+            center: zero,
+            axis_u: zero,
+            axis_v: zero,
+            albedo: 0.0,
+        },
+        scan: ScanGrid {
+            nx,
+            ny,
+            center: zero,
+            axis_u: zero,
+            axis_v: zero,
+        },
+        film: FilmSpec {
+            temporal_bins,
+            bin_width_opl,
+            start_opl,
+            kernel: KernelSpec::Box,
+        },
         sensor_origin,
         sensor_afl,
         spp,
@@ -559,11 +714,21 @@ fn sensor(cx: &mut Cx, node: &Node) -> Result<WallCfg> {
 fn projector(cx: &mut Cx, node: &Node, wall: &RelayWall, capture: CaptureType) -> Result<Laser> {
     let mut p = Plugin::new(node, cx)?;
     if p.kind() != "projector" {
-        return Err(cx.err(node.line, format!("emitter type '{}' is not supported: the laser is an <emitter type=\"projector\">", p.kind())));
+        return Err(cx.err(
+            node.line,
+            format!(
+                "emitter type '{}' is not supported: the laser is an <emitter type=\"projector\">",
+                p.kind()
+            ),
+        ));
     }
-    let irradiance = p.mono(cx, "irradiance")?.unwrap_or(1.0) * p.float(cx, "scale")?.unwrap_or(1.0);
+    let irradiance =
+        p.mono(cx, "irradiance")?.unwrap_or(1.0) * p.float(cx, "scale")?.unwrap_or(1.0);
     if irradiance < 0.0 {
-        return Err(cx.err(p.line_of("irradiance"), format!("the projector's irradiance must be >= 0, got {irradiance}")));
+        return Err(cx.err(
+            p.line_of("irradiance"),
+            format!("the projector's irradiance must be >= 0, got {irradiance}"),
+        ));
     }
     let fov_deg = p.float(cx, "fov")?.unwrap_or(DEFAULT_PROJECTOR_FOV);
     let m = p.transform(cx, "to_world")?.unwrap_or(Mat4::IDENTITY);
@@ -605,7 +770,10 @@ fn projector(cx: &mut Cx, node: &Node, wall: &RelayWall, capture: CaptureType) -
     Ok(Laser {
         origin,
         target,
-        emission: LaserEmission::Irradiance { irradiance, fov_deg },
+        emission: LaserEmission::Irradiance {
+            irradiance,
+            fov_deg,
+        },
         spot_radius: 0.0,
     })
 }

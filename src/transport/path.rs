@@ -9,7 +9,8 @@
 //!   meshes by area, then a shadow ray). Each is picked with probability `c_i`; the
 //!   throughput is divided by the mixture's area density
 //!   `q(y) = c_bsdf (cos θ_x/π) cos θ_y / |x - y|² + c_hg [y hidden] / A`,
-//!   which is unbiased whenever either technique can produce `y`;
+//!   which is unbiased whenever either technique can produce `y`. The shares `c_i`
+//!   depend on where `x` is ([`BSDF_SHARE_AT_WALL`], [`BSDF_SHARE_AT_HIDDEN`]);
 //! - **laser sampling**: next-event estimation from every hidden vertex to the laser
 //!   spot `x_l`. A point spot (`spot_radius = 0`) is a delta light: NEE is the only way
 //!   to reach it, with "intensity" `P (ρ_w/π) cos θ_l`. A finite spot is a lit disk of
@@ -40,6 +41,7 @@ use super::{
 };
 use crate::geometry::sampling::cosine_hemisphere;
 use crate::geometry::SurfaceKind;
+use crate::scene::Techniques;
 use crate::rng::Sampler;
 use glam::Vec3;
 use std::f32::consts::{FRAC_1_PI, PI};
@@ -59,6 +61,32 @@ struct Vertex {
     /// BRDF `ρ/π` at the vertex.
     f: f32,
     albedo: f32,
+    on_wall: bool,
+}
+
+/// Probability of continuing by BSDF sampling at a relay-wall vertex when both
+/// techniques are on. From the wall, every direction that hits anything hits hidden
+/// geometry (the wall is planar), which hidden-geometry sampling reaches with far less
+/// variance; BSDF sampling keeps a small share for large, close surfaces where area
+/// sampling's `1/d²` is a poor match.
+pub const BSDF_SHARE_AT_WALL: f32 = 0.1;
+/// The same at a hidden vertex, where interreflections need both.
+pub const BSDF_SHARE_AT_HIDDEN: f32 = 0.5;
+
+/// `(c_bsdf, c_hg)`: one-sample MIS probabilities of the two continuation techniques.
+fn technique_probabilities(tech: &Techniques, on_wall: bool) -> (f32, f32) {
+    match (tech.bsdf_sampling, tech.hidden_geometry_sampling) {
+        (true, true) => {
+            let c = if on_wall {
+                BSDF_SHARE_AT_WALL
+            } else {
+                BSDF_SHARE_AT_HIDDEN
+            };
+            (c, 1.0 - c)
+        }
+        (true, false) => (1.0, 0.0),
+        _ => (0.0, 1.0),
+    }
 }
 
 /// Traces one path from the sensor point and emits its contributions to `sink`.
@@ -71,12 +99,9 @@ pub fn sample<S: Sink>(
     let geom = ctx.geom;
     let r = &ctx.scene.render;
     let tech = &r.techniques;
-    let (c_bsdf, c_hg) = match (tech.bsdf_sampling, tech.hidden_geometry_sampling) {
-        (true, true) => (0.5, 0.5),
-        (true, false) => (1.0, 0.0),
-        (false, true) => (0.0, 1.0),
-        (false, false) => return,
-    };
+    if !tech.bsdf_sampling && !tech.hidden_geometry_sampling {
+        return;
+    }
     let max_bounces = r.max_bounces.min(r.filter_bounces.unwrap_or(u32::MAX));
     let keep = |bounces: u32, hidden_seen: bool| {
         bounces <= r.max_bounces
@@ -105,6 +130,7 @@ pub fn sample<S: Sink>(
         n_side: ctx.n_w,
         f: ctx.f_wall,
         albedo: ctx.scene.wall.albedo,
+        on_wall: true,
     };
     let mut beta = 1.0f32; // throughput up to x, without f(x)
     let mut opl = ctx.opl_sensor_leg; // OPL from the detector (or x_s) to x
@@ -119,6 +145,7 @@ pub fn sample<S: Sink>(
         let u_dir = sampler.next_2d();
         let u_spot = sampler.next_2d();
         let u_rr = sampler.next_1d();
+        let (c_bsdf, c_hg) = technique_probabilities(tech, x.on_wall);
 
         // --- continuation: sample y_j by one of the two techniques -----------------
         let (dir, dist, y_p, y_n, kind, flat, bary) = if u_pick < c_bsdf {
@@ -197,6 +224,7 @@ pub fn sample<S: Sink>(
                     n_side: ctx.n_w,
                     f: ctx.f_wall,
                     albedo: ctx.scene.wall.albedo,
+                    on_wall: true,
                 }
             }
             SurfaceKind::Hidden { .. } => {
@@ -224,8 +252,10 @@ pub fn sample<S: Sink>(
                         let g = cos_y_l * cos_wall_l / (r_l * r_l);
                         let weight = if spot_r > 0.0 {
                             let p_nee = 1.0 / spot_area;
-                            let w_mis = if c_bsdf > 0.0 {
-                                let p_b = c_bsdf * cos_y_l * FRAC_1_PI * cos_wall_l / (r_l * r_l);
+                            // BSDF sampling at y (a hidden vertex) could have landed on x_l too.
+                            let c_bsdf_y = technique_probabilities(tech, false).0;
+                            let w_mis = if c_bsdf_y > 0.0 {
+                                let p_b = c_bsdf_y * cos_y_l * FRAC_1_PI * cos_wall_l / (r_l * r_l);
                                 p_nee / (p_nee + p_b)
                             } else {
                                 1.0
@@ -246,6 +276,7 @@ pub fn sample<S: Sink>(
                     n_side,
                     f: f_y,
                     albedo,
+                    on_wall: false,
                 }
             }
         };

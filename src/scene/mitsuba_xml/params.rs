@@ -63,7 +63,10 @@ impl<'n> Plugin<'n> {
         for c in &node.children {
             if PARAM_TAGS.contains(&c.tag.as_str()) {
                 let name = c.attr("name").ok_or_else(|| {
-                    cx.err(c.line, format!("{label}: <{}> needs a name attribute", c.tag))
+                    cx.err(
+                        c.line,
+                        format!("{label}: <{}> needs a name attribute", c.tag),
+                    )
                 })?;
                 if params.iter().any(|p| p.0 == name) {
                     return Err(cx.err(
@@ -128,7 +131,10 @@ impl<'n> Plugin<'n> {
         }
         if n.tag != "transform" {
             if let Some(c) = n.children.first() {
-                return Err(cx.err(c.line, format!("<{} name=\"{name}\"> has a child element", n.tag)));
+                return Err(cx.err(
+                    c.line,
+                    format!("<{} name=\"{name}\"> has a child element", n.tag),
+                ));
             }
         }
         Ok(Some(n))
@@ -136,7 +142,10 @@ impl<'n> Plugin<'n> {
 
     fn value<'a>(&self, cx: &Cx, n: &'a Node, name: &str) -> Result<&'a str> {
         n.attr("value").ok_or_else(|| {
-            cx.err(n.line, format!("<{} name=\"{name}\"> needs a value attribute", n.tag))
+            cx.err(
+                n.line,
+                format!("<{} name=\"{name}\"> needs a value attribute", n.tag),
+            )
         })
     }
 
@@ -145,7 +154,9 @@ impl<'n> Plugin<'n> {
             return Ok(None);
         };
         let v = self.value(cx, n, name)?;
-        number(v).map(Some).ok_or_else(|| bad_number(cx, n, name, v))
+        number(v)
+            .map(Some)
+            .ok_or_else(|| bad_number(cx, n, name, v))
     }
 
     pub fn int(&mut self, cx: &Cx, name: &str) -> Result<Option<(i64, usize)>> {
@@ -252,7 +263,11 @@ impl<'n> Plugin<'n> {
         if let Some(second) = found.get(1) {
             return Err(cx.err(
                 second.line,
-                format!("{}: a second {} (only one is allowed)", self.label, second.label()),
+                format!(
+                    "{}: a second {} (only one is allowed)",
+                    self.label,
+                    second.label()
+                ),
             ));
         }
         Ok(found.first().copied())
@@ -304,7 +319,10 @@ pub(crate) fn numbers(s: &str) -> Option<Vec<f32>> {
 fn xyz(cx: &Cx, n: &Node, what: &str, default: Option<f32>) -> Result<Vec3> {
     if let Some(v) = n.attr("value") {
         if let Some(a) = ["x", "y", "z"].iter().find(|a| n.attr(a).is_some()) {
-            return Err(cx.err(n.line, format!("{what}: give either value or {a}, not both")));
+            return Err(cx.err(
+                n.line,
+                format!("{what}: give either value or {a}, not both"),
+            ));
         }
         return match numbers(v).as_deref() {
             Some(&[a]) => Ok(Vec3::splat(a)),
@@ -345,7 +363,11 @@ pub(crate) fn transform(cx: &Cx, t: &Node) -> Result<Mat4> {
             _ => {
                 return Err(cx.err(
                     op.line,
-                    format!("{}: unknown operation <{}> (translate, scale, rotate, matrix, lookat)", t.label(), op.tag),
+                    format!(
+                        "{}: unknown operation <{}> (translate, scale, rotate, matrix, lookat)",
+                        t.label(),
+                        op.tag
+                    ),
                 ))
             }
         };
@@ -362,7 +384,10 @@ pub(crate) fn transform(cx: &Cx, t: &Node) -> Result<Mat4> {
                 let angle = match op.attr("angle").map(|a| (a, number(a))) {
                     Some((_, Some(a))) => a,
                     Some((a, None)) => {
-                        return Err(cx.err(op.attr_line("angle"), format!("{what}: angle '{a}' is not a finite number")))
+                        return Err(cx.err(
+                            op.attr_line("angle"),
+                            format!("{what}: angle '{a}' is not a finite number"),
+                        ))
                     }
                     None => return Err(cx.err(op.line, format!("{what}: missing angle (degrees)"))),
                 };
@@ -378,7 +403,10 @@ pub(crate) fn transform(cx: &Cx, t: &Node) -> Result<Mat4> {
         m = step * m;
     }
     if !m.is_finite() {
-        return Err(cx.err(t.line, format!("{}: the composed matrix is not finite", t.label())));
+        return Err(cx.err(
+            t.line,
+            format!("{}: the composed matrix is not finite", t.label()),
+        ));
     }
     Ok(m)
 }

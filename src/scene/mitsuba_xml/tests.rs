@@ -42,8 +42,14 @@ fn ytal_example_loads() {
     assert_eq!((s.scan.nx, s.scan.ny), (24, 24));
     assert!(close(s.scan.axis_u, Vec3::X) && close(s.scan.axis_v, Vec3::Y));
     // Pixel centres: the first scan point is at (-0.5 + 1/48, -0.5 + 1/48).
-    assert!(close(s.scan.point(0), Vec3::new(-0.5 + 1.0 / 48.0, -0.5 + 1.0 / 48.0, 0.0)));
-    assert!(close(s.scan.point(1), Vec3::new(-0.5 + 3.0 / 48.0, -0.5 + 1.0 / 48.0, 0.0)));
+    assert!(close(
+        s.scan.point(0),
+        Vec3::new(-0.5 + 1.0 / 48.0, -0.5 + 1.0 / 48.0, 0.0)
+    ));
+    assert!(close(
+        s.scan.point(1),
+        Vec3::new(-0.5 + 3.0 / 48.0, -0.5 + 1.0 / 48.0, 0.0)
+    ));
     assert!(close(s.laser.origin, Vec3::new(0.3, 0.2, 0.3)));
     assert!(close(s.laser.target, Vec3::ZERO)); // y-tal aims at the wall's centre.
     assert_eq!(
@@ -67,8 +73,14 @@ fn ytal_example_loads() {
     );
     assert!(!s.account_first_and_last_bounces);
     let r = &s.render;
-    assert_eq!((r.spp, r.seed, r.max_bounces, r.filter_bounces), (10000, 0, u32::MAX, None));
-    assert_eq!((r.model, r.rr_bounces, r.discard_direct_paths), (Model::Path, 5, false));
+    assert_eq!(
+        (r.spp, r.seed, r.max_bounces, r.filter_bounces),
+        (10000, 0, u32::MAX, None)
+    );
+    assert_eq!(
+        (r.model, r.rr_bounces, r.discard_direct_paths),
+        (Model::Path, 5, false)
+    );
     assert_eq!(
         r.techniques,
         Techniques {
@@ -87,8 +99,15 @@ fn ytal_example_loads() {
     let v1 = Vec3::new(-0.1, -0.2 * c - 0.05, -0.2 * sn + 0.8);
     assert!(close(l.mesh.positions[0], v1), "{}", l.mesh.positions[0]);
     assert_eq!(s.warnings.len(), 1, "{:?}", s.warnings);
-    assert!(s.warnings[0].contains("translation only"), "{:?}", s.warnings);
-    assert!(s.warnings[0].starts_with(&format!("{}:16:", ytal_dir().join("nlos_scene.xml").display())));
+    assert!(
+        s.warnings[0].contains("translation only"),
+        "{:?}",
+        s.warnings
+    );
+    assert!(s.warnings[0].starts_with(&format!(
+        "{}:16:",
+        ytal_dir().join("nlos_scene.xml").display()
+    )));
 }
 
 fn xf(body: &str) -> Mat4 {
@@ -104,11 +123,21 @@ fn xf(body: &str) -> Mat4 {
 #[test]
 fn transforms_compose_like_mitsuba() {
     // Reference values from Mitsuba 3.9.1 (rectangle.sample_position of local points).
-    let m = xf(r#"<translate x="1" y="2" z="3"/><rotate y="1" angle="90"/><scale x="2" y="3" z="4"/>"#);
-    assert!(close(m.transform_point3(Vec3::new(1.0, 1.0, 0.0)), Vec3::new(6.0, 9.0, -8.0)));
-    assert!(close(m.transform_point3(Vec3::ZERO), Vec3::new(6.0, 6.0, -4.0)));
+    let m =
+        xf(r#"<translate x="1" y="2" z="3"/><rotate y="1" angle="90"/><scale x="2" y="3" z="4"/>"#);
+    assert!(close(
+        m.transform_point3(Vec3::new(1.0, 1.0, 0.0)),
+        Vec3::new(6.0, 9.0, -8.0)
+    ));
+    assert!(close(
+        m.transform_point3(Vec3::ZERO),
+        Vec3::new(6.0, 6.0, -4.0)
+    ));
     let m = xf(r#"<matrix value="1 0 0 5  0 2 0 6  0 0 3 7  0 0 0 1"/><scale value="2"/>"#);
-    assert!(close(m.transform_point3(Vec3::new(1.0, 1.0, 0.0)), Vec3::new(12.0, 16.0, 14.0)));
+    assert!(close(
+        m.transform_point3(Vec3::new(1.0, 1.0, 0.0)),
+        Vec3::new(12.0, 16.0, 14.0)
+    ));
     let m = xf(r#"<rotate value="0, 0, 1" angle="90"/><translate value="1 0 0"/>"#);
     assert!(close(m.transform_point3(Vec3::X), Vec3::new(1.0, 1.0, 0.0)));
 }
@@ -116,15 +145,24 @@ fn transforms_compose_like_mitsuba() {
 #[test]
 fn lookat_matches_mitsuba() {
     let m = xf(r#"<lookat origin="1, 2, 3" target="1, 2, 0"/>"#);
-    assert!(close(m.transform_point3(Vec3::ZERO), Vec3::new(1.0, 2.0, 3.0)));
+    assert!(close(
+        m.transform_point3(Vec3::ZERO),
+        Vec3::new(1.0, 2.0, 3.0)
+    ));
     assert!(close(m.transform_vector3(Vec3::X), Vec3::Y));
     assert!(close(m.transform_vector3(Vec3::Y), Vec3::X));
     assert!(close(m.transform_vector3(Vec3::Z), -Vec3::Z));
     let m = xf(r#"<lookat origin="1, 2, 3" target="2, 4, 0"/>"#);
     let x = m.transform_vector3(Vec3::X);
     let y = m.transform_vector3(Vec3::Y);
-    assert!((x - Vec3::new(-0.079287, 0.84143, 0.53452)).length() < 1e-4, "{x}");
-    assert!((y - Vec3::new(0.96036, -0.079289, 0.26726)).length() < 1e-4, "{y}");
+    assert!(
+        (x - Vec3::new(-0.079287, 0.84143, 0.53452)).length() < 1e-4,
+        "{x}"
+    );
+    assert!(
+        (y - Vec3::new(0.96036, -0.079289, 0.26726)).length() < 1e-4,
+        "{y}"
+    );
     let m = xf(r#"<lookat origin="0, 0, 1" target="0, 0, 0" up="0, 1, 0"/>"#);
     assert!(close(m.transform_vector3(Vec3::X), -Vec3::X));
     assert!(close(m.transform_vector3(Vec3::Y), Vec3::Y));
@@ -140,7 +178,11 @@ fn laser_lookat_sets_target() {
     );
     let s = parse_str(&t).unwrap();
     assert!(close(s.laser.origin, Vec3::new(0.3, 0.2, 0.3)));
-    assert!(close(s.laser.target, Vec3::new(0.1, -0.1, 0.0)), "{}", s.laser.target);
+    assert!(
+        close(s.laser.target, Vec3::new(0.1, -0.1, 0.0)),
+        "{}",
+        s.laser.target
+    );
     assert!(s.warnings.is_empty(), "{:?}", s.warnings);
 }
 
@@ -174,22 +216,37 @@ fn laser_pointing_away_or_off_the_wall_is_an_error() {
 
 #[test]
 fn mirrored_wall_keeps_mitsubas_front_and_film_orientation() {
-    let t = edit(r#"<scale x="0.5" y="0.5" z="1"/>"#, r#"<scale x="-0.5" y="0.5" z="1"/>"#);
+    let t = edit(
+        r#"<scale x="0.5" y="0.5" z="1"/>"#,
+        r#"<scale x="-0.5" y="0.5" z="1"/>"#,
+    );
     let s = parse_str(&t).unwrap();
     assert!(close(s.wall.normal(), Vec3::Z));
     assert!(close(s.scan.axis_u, -Vec3::X) && close(s.scan.axis_v, Vec3::Y));
     // Film pixel (0, 0) is at local (-1 + 1/24, -1 + 1/24), mirrored in x.
-    assert!(close(s.scan.point(0), Vec3::new(0.5 - 1.0 / 48.0, -0.5 + 1.0 / 48.0, 0.0)));
+    assert!(close(
+        s.scan.point(0),
+        Vec3::new(0.5 - 1.0 / 48.0, -0.5 + 1.0 / 48.0, 0.0)
+    ));
 }
 
 #[test]
 fn depth_conversion() {
     // Laser sampling on: three bounces = max_depth 3, filter_bounces 2 (filter_depth 3).
     assert_eq!(mitransient_depth_to_bounces(3, Some(3), true), (3, Some(3)));
-    assert_eq!(mitransient_depth_to_bounces(-1, None, true), (u32::MAX, None));
+    assert_eq!(
+        mitransient_depth_to_bounces(-1, None, true),
+        (u32::MAX, None)
+    );
     // Laser sampling off: three bounces = max_depth 4, filter_bounces 1 (filter_depth 2).
-    assert_eq!(mitransient_depth_to_bounces(4, Some(2), false), (3, Some(3)));
-    assert_eq!(mitransient_depth_to_bounces(-1, None, false), (u32::MAX, None));
+    assert_eq!(
+        mitransient_depth_to_bounces(4, Some(2), false),
+        (3, Some(3))
+    );
+    assert_eq!(
+        mitransient_depth_to_bounces(-1, None, false),
+        (u32::MAX, None)
+    );
     let t = edit(
         r#"<integer name="max_depth" value="-1"/>
         <integer name="filter_bounces" value="-1"/>"#,
@@ -198,13 +255,22 @@ fn depth_conversion() {
     );
     let r = parse_str(&t).unwrap().render;
     assert_eq!((r.max_bounces, r.filter_bounces), (4, Some(3)));
-    let t = t.replace(r#"name="nlos_laser_sampling" value="true""#, r#"name="nlos_laser_sampling" value="false""#);
+    let t = t.replace(
+        r#"name="nlos_laser_sampling" value="true""#,
+        r#"name="nlos_laser_sampling" value="false""#,
+    );
     // Laser sampling off: filter_bounces 2 is four bounces, more than max_depth 4 allows.
     assert_eq!(err_line(parse_str(&t)).0, 6);
-    let t = t.replace(r#"name="max_depth" value="4""#, r#"name="max_depth" value="5""#);
+    let t = t.replace(
+        r#"name="max_depth" value="4""#,
+        r#"name="max_depth" value="5""#,
+    );
     let r = parse_str(&t).unwrap().render;
     assert_eq!((r.max_bounces, r.filter_bounces), (4, Some(4)));
-    let t = edit(r#"name="max_depth" value="-1""#, r#"name="max_depth" value="2""#);
+    let t = edit(
+        r#"name="max_depth" value="-1""#,
+        r#"name="max_depth" value="2""#,
+    );
     assert_eq!(err_line(parse_str(&t)).0, 5);
 }
 
@@ -219,7 +285,10 @@ fn defaults_are_substituted() {
     let s = parse_str(&t).unwrap();
     assert_eq!(s.render.spp, 123);
     assert!(close(s.wall.axis_u, Vec3::X));
-    let t = edit(r#"name="sample_count" value="10000""#, r#"name="sample_count" value="$nope""#);
+    let t = edit(
+        r#"name="sample_count" value="10000""#,
+        r#"name="sample_count" value="$nope""#,
+    );
     let (line, msg) = err_line(parse_str(&t));
     assert_eq!(line, 56, "{msg}");
     assert!(msg.contains("$nope"), "{msg}");
@@ -229,25 +298,61 @@ fn defaults_are_substituted() {
 fn errors_name_the_line() {
     let cases = [
         // Unknown element.
-        (edit("    <!-- L -->", "    <texture type=\"bitmap\"/>"), 25, "<texture>"),
+        (
+            edit("    <!-- L -->", "    <texture type=\"bitmap\"/>"),
+            25,
+            "<texture>",
+        ),
         // Unknown parameter.
         (
-            edit(r#"<float name="start_opl" value="1.0"/>"#, r#"<float name="start_opl" value="1.0"/><float name="exposure" value="1"/>"#),
+            edit(
+                r#"<float name="start_opl" value="1.0"/>"#,
+                r#"<float name="start_opl" value="1.0"/><float name="exposure" value="1"/>"#,
+            ),
             72,
             "exposure",
         ),
         // Bad float.
-        (edit(r#"<float name="fov" value="0.2"/>"#, r#"<float name="fov" value="abc"/>"#), 22, "'abc'"),
+        (
+            edit(
+                r#"<float name="fov" value="0.2"/>"#,
+                r#"<float name="fov" value="abc"/>"#,
+            ),
+            22,
+            "'abc'",
+        ),
         // NaN in a transform, and inf in an attribute on a continuation line.
-        (edit(r#"<translate x="0.05""#, r#"<translate x="nan""#), 37, "nan"),
+        (
+            edit(r#"<translate x="0.05""#, r#"<translate x="nan""#),
+            37,
+            "nan",
+        ),
         (edit(r#"y="0.2""#, r#"y="inf""#), 18, "inf"),
         // Missing OBJ file.
         (edit("./L.obj", "./missing.obj"), 27, "missing.obj"),
         // Wrong parameter type.
-        (edit(r#"<integer name="width" value="24"/>"#, r#"<float name="width" value="24"/>"#), 66, "width"),
+        (
+            edit(
+                r#"<integer name="width" value="24"/>"#,
+                r#"<float name="width" value="24"/>"#,
+            ),
+            66,
+            "width",
+        ),
         // Unsupported BSDF, unknown attribute, malformed XML.
-        (edit(r#"<bsdf type="diffuse">"#, r#"<bsdf type="conductor">"#), 29, "conductor"),
-        (edit(r#"<rotate x="1" angle="20.0"/>"#, r#"<rotate x="1" angle="20.0" deg="1"/>"#), 34, "deg"),
+        (
+            edit(r#"<bsdf type="diffuse">"#, r#"<bsdf type="conductor">"#),
+            29,
+            "conductor",
+        ),
+        (
+            edit(
+                r#"<rotate x="1" angle="20.0"/>"#,
+                r#"<rotate x="1" angle="20.0" deg="1"/>"#,
+            ),
+            34,
+            "deg",
+        ),
         (edit("</sensor>", "</sensr>"), 77, "malformed XML"),
     ];
     for (text, want, needle) in cases {
@@ -273,7 +378,11 @@ fn bsdf_refs_twosided_and_rgb() {
     let s = parse_str(&t).unwrap();
     let o = &s.objects[0];
     assert!((o.albedo - 0.3).abs() < 1e-6 && o.two_sided);
-    assert!(s.warnings.iter().any(|w| w.contains("mean")), "{:?}", s.warnings);
+    assert!(
+        s.warnings.iter().any(|w| w.contains("mean")),
+        "{:?}",
+        s.warnings
+    );
     let bad = t.replace(r#"<ref id="grey"/>"#, r#"<ref id="gray"/>"#);
     assert_eq!(err_line(parse_str(&bad)).0, 29);
 }
@@ -295,7 +404,11 @@ fn hidden_rectangle_and_gaussian_kernel() {
     assert!((r.mesh.area(0) + r.mesh.area(1) - 0.04).abs() < 1e-6);
     let [a, b, c] = r.mesh.triangle(0);
     assert!((b - a).cross(c - a).z > 0.0);
-    assert!(s.warnings.iter().any(|w| w.contains("gaussian")), "{:?}", s.warnings);
+    assert!(
+        s.warnings.iter().any(|w| w.contains("gaussian")),
+        "{:?}",
+        s.warnings
+    );
 }
 
 #[test]
@@ -321,14 +434,30 @@ fn flip_normals_and_smooth_normal_warning() {
     // A bent OBJ without face_normals: Mitsuba would shade it with smoothed normals.
     let dir = std::env::temp_dir().join(format!("umbra_xml_test_{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(dir.join("bent.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\n").unwrap();
-    let t = ytal_text()
-        .replace("./L.obj", "bent.obj")
-        .replace(r#"<scale x="1.0" y="1.0" z="1.0"/>"#, r#"<scale value="0.1"/>"#);
+    std::fs::write(
+        dir.join("bent.obj"),
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\n",
+    )
+    .unwrap();
+    let t = ytal_text().replace("./L.obj", "bent.obj").replace(
+        r#"<scale x="1.0" y="1.0" z="1.0"/>"#,
+        r#"<scale value="0.1"/>"#,
+    );
     let s = parse(&t, Path::new("t.xml"), &dir).unwrap();
-    assert!(s.warnings.iter().any(|w| w.contains("smoothed")), "{:?}", s.warnings);
-    let t = t.replace(r#"<string name="filename" value="bent.obj"/>"#, r#"<string name="filename" value="bent.obj"/><boolean name="face_normals" value="true"/>"#);
+    assert!(
+        s.warnings.iter().any(|w| w.contains("smoothed")),
+        "{:?}",
+        s.warnings
+    );
+    let t = t.replace(
+        r#"<string name="filename" value="bent.obj"/>"#,
+        r#"<string name="filename" value="bent.obj"/><boolean name="face_normals" value="true"/>"#,
+    );
     let s = parse(&t, Path::new("t.xml"), &dir).unwrap();
-    assert!(!s.warnings.iter().any(|w| w.contains("smoothed")), "{:?}", s.warnings);
+    assert!(
+        !s.warnings.iter().any(|w| w.contains("smoothed")),
+        "{:?}",
+        s.warnings
+    );
     std::fs::remove_dir_all(&dir).ok();
 }

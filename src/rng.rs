@@ -35,16 +35,23 @@ impl Sampler {
     }
 
     /// Next pair of stratified numbers in [0, 1)².
+    #[inline]
     pub fn next_2d(&mut self) -> [f32; 2] {
         let d = self.dim;
         self.dim += 2;
         let pair = d / 2;
         if pair < SOBOL_PAIRS {
-            let seed = (mix64(self.key ^ (pair as u64).wrapping_mul(0xD1B5_4A32_D192_ED03)) >> 32) as u32;
-            let i = nested_uniform_scramble(self.index, seed);
-            let x = nested_uniform_scramble(sobol_dim0(i), hash_u32(seed ^ 0x68BC_21EB));
-            let y = nested_uniform_scramble(sobol_dim1(i), hash_u32(seed ^ 0x02E5_BE93));
-            [to_unit(x), to_unit(y)]
+            // Three independent scramble seeds from one 64-bit hash of (key, pair).
+            let h = mix64(self.key ^ (pair as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
+            let (seed_index, seed_x) = (h as u32, (h >> 32) as u32);
+            let seed_y = (h.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as u32;
+            // Owen-scrambled index (Burley's shuffle), then each coordinate scrambled.
+            // Scrambling works on bit-reversed numbers; Sobol' dimension 0 is the
+            // bit-reversed index, so its coordinate needs no table.
+            let i = laine_karras(self.index.reverse_bits(), seed_index).reverse_bits();
+            let x = laine_karras(i, seed_x);
+            let y = laine_karras(sobol_dim1_reversed(i), seed_y);
+            [to_unit(x.reverse_bits()), to_unit(y.reverse_bits())]
         } else {
             [self.hashed(d), self.hashed(d + 1)]
         }
@@ -66,44 +73,61 @@ fn to_unit(x: u32) -> f32 {
     (x >> 8) as f32 * (1.0 / 16_777_216.0)
 }
 
-/// Sobol' dimension 0 (van der Corput in base 2), as 32-bit fixed point.
-fn sobol_dim0(i: u32) -> u32 {
-    i.reverse_bits()
+/// Bit-reversed Sobol' dimension 1 of index `i`: XOR of the reversed direction
+/// numbers of `i`'s set bits, four table lookups (one per byte).
+#[inline]
+fn sobol_dim1_reversed(i: u32) -> u32 {
+    let t = &SOBOL1_REV_TABLE;
+    t[0][(i & 0xFF) as usize]
+        ^ t[1][((i >> 8) & 0xFF) as usize]
+        ^ t[2][((i >> 16) & 0xFF) as usize]
+        ^ t[3][(i >> 24) as usize]
 }
 
-/// Sobol' dimension 1, as 32-bit fixed point: generator matrix of Pascal's triangle mod 2.
-fn sobol_dim1(mut i: u32) -> u32 {
-    let mut v: u32 = 1 << 31;
-    let mut x = 0;
-    while i != 0 {
-        if i & 1 != 0 {
-            x ^= v;
-        }
-        i >>= 1;
-        v ^= v >> 1;
+/// Reversed direction numbers of Sobol' dimension 1 (Pascal's triangle mod 2), grouped
+/// by byte: `table[k][b]` = XOR of the reversed direction numbers of the set bits of
+/// `b << 8k`.
+static SOBOL1_REV_TABLE: [[u32; 256]; 4] = {
+    let mut v = [0u32; 32];
+    let mut dir: u32 = 1 << 31;
+    let mut k = 0;
+    while k < 32 {
+        v[k] = dir.reverse_bits();
+        dir ^= dir >> 1;
+        k += 1;
     }
-    x
-}
+    let mut t = [[0u32; 256]; 4];
+    let mut byte = 0;
+    while byte < 4 {
+        let mut b = 0;
+        while b < 256 {
+            let mut x = 0;
+            let mut bit = 0;
+            while bit < 8 {
+                if b & (1 << bit) != 0 {
+                    x ^= v[byte * 8 + bit];
+                }
+                bit += 1;
+            }
+            t[byte][b] = x;
+            b += 1;
+        }
+        byte += 1;
+    }
+    t
+};
 
-/// Owen scrambling of a 32-bit fixed-point number by hashing (Laine–Karras style,
-/// with Burley's improved constants): every bit is flipped depending only on the bits
-/// above it, which preserves the (0,m,2)-net structure.
-fn nested_uniform_scramble(x: u32, seed: u32) -> u32 {
-    let mut x = x.reverse_bits();
+/// Laine–Karras hash permutation with Burley's constants, on a bit-reversed number:
+/// each bit is flipped depending only on the bits below it (the bits above it in the
+/// unreversed number), which is a nested uniform (Owen) scramble.
+#[inline]
+fn laine_karras(mut x: u32, seed: u32) -> u32 {
     x ^= x.wrapping_mul(0x3D20_ADEA);
     x = x.wrapping_add(seed);
     x = x.wrapping_mul((seed >> 16) | 1);
     x ^= x.wrapping_mul(0x0552_6C56);
     x ^= x.wrapping_mul(0x53A2_2864);
-    x.reverse_bits()
-}
-
-fn hash_u32(mut x: u32) -> u32 {
-    x ^= x >> 16;
-    x = x.wrapping_mul(0x7FEB_352D);
-    x ^= x >> 15;
-    x = x.wrapping_mul(0x846C_A68B);
-    x ^ (x >> 16)
+    x
 }
 
 /// A 64-bit finaliser with full avalanche (splitmix64's).
@@ -124,6 +148,23 @@ mod tests {
         let mut s = Sampler::new(7, 3, 11);
         let mut t = Sampler::new(7, 4, 11);
         assert_ne!(s.next_2d(), t.next_2d());
+    }
+
+    #[test]
+    fn sobol_dim1_table_matches_the_generator() {
+        // Sobol' dimension 1 by its definition: direction numbers v_k with
+        // v_0 = 1 << 31, v_{k+1} = v_k ^ (v_k >> 1).
+        for i in [0u32, 1, 2, 3, 7, 100, 12345, 0xDEAD_BEEF, u32::MAX] {
+            let (mut x, mut v, mut j) = (0u32, 1u32 << 31, i);
+            while j != 0 {
+                if j & 1 != 0 {
+                    x ^= v;
+                }
+                j >>= 1;
+                v ^= v >> 1;
+            }
+            assert_eq!(sobol_dim1_reversed(i), x.reverse_bits(), "i = {i}");
+        }
     }
 
     #[test]

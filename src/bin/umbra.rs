@@ -47,6 +47,16 @@ struct RenderArgs {
     /// bounce); -1 for unbounded. Overrides the scene.
     #[arg(long, allow_negative_numbers = true)]
     max_depth: Option<i64>,
+    /// Override the scene's laser sampling (NEE to the laser spot): true or false.
+    #[arg(long)]
+    laser_sampling: Option<bool>,
+    /// Override hidden-geometry (area) sampling: true or false.
+    #[arg(long)]
+    hidden_geometry_sampling: Option<bool>,
+    /// Override BSDF (cosine) sampling: true or false. With hidden-geometry sampling
+    /// also on, the two are combined by multiple importance sampling.
+    #[arg(long)]
+    bsdf_sampling: Option<bool>,
     /// Do not write the PNG previews.
     #[arg(long)]
     no_preview: bool,
@@ -89,6 +99,10 @@ fn render(args: RenderArgs) -> umbra::Result<()> {
             }
         };
     }
+    let t = &mut scene.render.techniques;
+    t.laser_sampling = args.laser_sampling.unwrap_or(t.laser_sampling);
+    t.hidden_geometry_sampling = args.hidden_geometry_sampling.unwrap_or(t.hidden_geometry_sampling);
+    t.bsdf_sampling = args.bsdf_sampling.unwrap_or(t.bsdf_sampling);
     let mut opts = RenderOptions::from_scene(&scene);
     if let Some(m) = &args.model {
         opts.model = Model::parse(m).ok_or_else(|| {

@@ -14,6 +14,11 @@ use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 use std::time::Duration;
 
+/// Scenes with at most this many triangles (wall included) skip the BVH: testing every
+/// triangle is cheaper than a CWBVH traversal's fixed cost (measured with callgrind on a
+/// 6-triangle scene: ~450 instructions per shadow ray through the BVH).
+const BRUTE_FORCE_PRIMS: usize = 8;
+
 /// What a primitive belongs to.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SurfaceKind {
@@ -183,7 +188,18 @@ impl SceneGeometry {
         let ray = Ray::new(origin.into(), dir.into(), self.eps, f32::INFINITY);
         let mut hit = RayHit::none();
         let prims = &self.prims;
-        if !self
+        if prims.len() <= BRUTE_FORCE_PRIMS {
+            for (i, p) in prims.iter().enumerate() {
+                let t = p.tri.intersect(&ray);
+                if t < hit.t {
+                    hit.t = t;
+                    hit.primitive_id = i as u32;
+                }
+            }
+            if !hit.t.is_finite() {
+                return None;
+            }
+        } else if !self
             .bvh
             .ray_traverse(ray, &mut hit, |r, id| prims[id].tri.intersect(r))
         {
@@ -211,6 +227,9 @@ impl SceneGeometry {
         let dir = d / dist;
         let ray = Ray::new(a.into(), dir.into(), self.eps, dist - self.eps);
         let prims = &self.prims;
+        if prims.len() <= BRUTE_FORCE_PRIMS {
+            return prims.iter().any(|p| p.tri.intersect(&ray) < f32::INFINITY);
+        }
         !self
             .bvh
             .ray_traverse_miss(ray, |r, id| prims[id].tri.intersect(r))

@@ -23,19 +23,20 @@
 //! - Depths: see [`mitransient_depth_to_bounces`].
 
 mod params;
+mod shapes;
 mod tree;
 
 #[cfg(test)]
 mod tests;
 
 use super::{
-    CaptureType, Detector, FilmSpec, HiddenObject, KernelSpec, Laser, LaserEmission, Model,
-    RelayWall, RenderSettings, ScanGrid, Scene, Techniques,
+    CaptureType, Detector, FilmSpec, KernelSpec, Laser, LaserEmission, Model, RelayWall,
+    RenderSettings, Scene, Techniques,
 };
 use crate::error::{Error, Result};
-use crate::geometry::mesh::TriMesh;
-use glam::{Affine3A, Mat3, Mat4, Vec3};
+use glam::{Mat3, Mat4, Vec3};
 use params::{Cx, Plugin};
+use shapes::{shape, Shape, WallCfg};
 use std::collections::HashMap;
 use std::path::Path;
 use tree::Node;
@@ -204,12 +205,15 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
         .bool(cx, "nlos_hidden_geometry_sampling")?
         .unwrap_or(false);
     // mitransient ignores these two unless hidden-geometry sampling is on.
-    let hg_rr = hg
-        && p.bool(cx, "nlos_hidden_geometry_sampling_do_rroulette")?
-            .unwrap_or(false);
-    let hg_wall = hg
-        && p.bool(cx, "nlos_hidden_geometry_sampling_includes_relay_wall")?
-            .unwrap_or(false);
+    // (Both read even then, so that they are not reported as unknown.)
+    let hg_rr = p
+        .bool(cx, "nlos_hidden_geometry_sampling_do_rroulette")?
+        .unwrap_or(false)
+        && hg;
+    let hg_wall = p
+        .bool(cx, "nlos_hidden_geometry_sampling_includes_relay_wall")?
+        .unwrap_or(false)
+        && hg;
     if hg_rr {
         cx.warn(p.line_of("nlos_hidden_geometry_sampling_do_rroulette"), "nlos_hidden_geometry_sampling_do_rroulette = true: mitransient 1.3.1 then picks hidden-geometry or BSDF sampling 50/50 without MIS and doubles its result (a mitransient bug); Umbra combines the two without that bias");
     }
@@ -281,7 +285,7 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
     }
     if let (Some(f), Some((_, l))) = (filter_bounces, filter_depth) {
         if f < 2 || f > max_bounces {
-            return Err(cx.err(l, format!("the bounce filter selects paths of {f} bounces (laser spot ... sensor point), which cannot occur with max_depth = {max_depth}: the render would be zero")));
+            return Err(cx.err(l, format!("with nlos_laser_sampling = {laser_sampling} this bounce filter selects paths of {f} surface vertices (laser spot to sensor point), but paths have from 2 to {max_bounces} here (max_depth = {max_depth}): the render would be zero")));
         }
     }
 
@@ -376,339 +380,6 @@ fn mitransient_depth_to_bounces(
         max_bounces,
         filter_depth.map(|d| to_u32(d.saturating_add(extra))),
     )
-}
-
-enum Shape {
-    Hidden(HiddenObject),
-    Wall(Box<WallCfg>),
-}
-
-/// The relay wall and what its nlos_capture_meter says.
-struct WallCfg {
-    wall: RelayWall,
-    scan: ScanGrid,
-    film: FilmSpec,
-    sensor_origin: Vec3,
-    sensor_afl: Option<(bool, usize)>,
-    spp: u32,
-    seed: u64,
-    /// (film's exhaustive_scan, its line); (laser_scan_width/height, line).
-    exhaustive_scan: (bool, usize),
-    laser_scan: (Option<(i64, i64)>, usize),
-}
-
-fn shape(cx: &mut Cx, node: &Node, bsdfs: &HashMap<&str, &Node>, base_dir: &Path) -> Result<Shape> {
-    let mut p = Plugin::new(node, cx)?;
-    let kind = p.kind();
-    if kind != "obj" && kind != "rectangle" {
-        return Err(cx.err(
-            node.line,
-            format!("shape type '{kind}' is not supported (obj, rectangle)"),
-        ));
-    }
-    let m = p.transform(cx, "to_world")?.unwrap_or(Mat4::IDENTITY);
-    let (albedo, two_sided) = match p.object(cx, &["bsdf", "ref"])? {
-        Some(b) => bsdf(cx, b, bsdfs, 0)?,
-        None => (0.5, false), // Mitsuba's default: diffuse, reflectance 0.5.
-    };
-    let det = Mat3::from_mat4(m).determinant();
-    let name = |fallback: String| node.attr("id").map(str::to_string).unwrap_or(fallback);
-    let (mut mesh, name, reverse) = if kind == "obj" {
-        let (file, fline) = p.string(cx, "filename")?.ok_or_else(|| {
-            cx.err(
-                node.line,
-                "<shape type=\"obj\"> needs <string name=\"filename\" value=\"..\"/>",
-            )
-        })?;
-        let face_normals = p.bool(cx, "face_normals")?.unwrap_or(false);
-        let flip = p.bool(cx, "flip_normals")?.unwrap_or(false);
-        let sensor = p.object(cx, &["sensor"])?;
-        if let Some(s) = sensor {
-            return Err(cx.err(s.line, "the nlos_capture_meter must sit in a <shape type=\"rectangle\"> (Umbra's relay wall is a rectangle)"));
-        }
-        p.finish(cx)?;
-        let path = base_dir.join(file);
-        let text = std::fs::read_to_string(&path).map_err(|e| {
-            cx.err(
-                fline,
-                format!(
-                    "<shape type=\"obj\">: cannot read '{}': {e}",
-                    path.display()
-                ),
-            )
-        })?;
-        let mesh = TriMesh::parse_obj(&text, &path)?;
-        let has_vn = text.lines().any(|l| l.trim_start().starts_with("vn "));
-        if !face_normals && (has_vn || !is_planar(&mesh)) {
-            cx.warn(node.line, format!("Mitsuba shades {file} with {} vertex normals (face_normals = false); Umbra uses the triangles' geometric normals: set <boolean name=\"face_normals\" value=\"true\"/> for the same result in both", if has_vn { "its" } else { "smoothed" }));
-        }
-        let stem = Path::new(file)
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned());
-        (mesh, name(stem.unwrap_or_else(|| file.to_string())), flip)
-    } else {
-        let flip = p.bool(cx, "flip_normals")?.unwrap_or(false);
-        if let Some(s) = p.object(cx, &["sensor"])? {
-            let u = m.transform_vector3(Vec3::X * 2.0);
-            let v = m.transform_vector3(Vec3::Y * 2.0);
-            if u.cross(v).length() <= 1e-12 {
-                return Err(cx.err(
-                    node.line,
-                    "the relay wall's to_world flattens it to zero area",
-                ));
-            }
-            p.finish(cx)?;
-            let center = m.transform_point3(Vec3::ZERO);
-            let mut w = sensor(cx, s)?;
-            w.scan.center = center;
-            w.scan.axis_u = u;
-            w.scan.axis_v = v;
-            // Mitsuba's normal is to_world^{-T} · z (negated by flip_normals): flip
-            // axis_u when that is opposite to u × v.
-            let axis_u = if (det < 0.0) != flip { -u } else { u };
-            w.wall = RelayWall {
-                center,
-                axis_u,
-                axis_v: v,
-                albedo,
-            };
-            return Ok(Shape::Wall(Box::new(w)));
-        }
-        p.finish(cx)?;
-        let positions = vec![
-            Vec3::new(-1.0, -1.0, 0.0),
-            Vec3::new(1.0, -1.0, 0.0),
-            Vec3::new(1.0, 1.0, 0.0),
-            Vec3::new(-1.0, 1.0, 0.0),
-        ];
-        let mesh = TriMesh {
-            positions,
-            triangles: vec![[0, 1, 2], [0, 2, 3]],
-            vertex_albedo: None,
-        };
-        // Keep the front where Mitsuba has it (to_world^{-T} · z): reverse the
-        // winding for a mirroring to_world.
-        (
-            mesh,
-            name(format!("rectangle@{}", node.line)),
-            (det < 0.0) != flip,
-        )
-    };
-    if reverse {
-        for t in &mut mesh.triangles {
-            t.swap(1, 2);
-        }
-    }
-    mesh.transform(&Affine3A::from_mat4(m));
-    let dropped = mesh.drop_degenerate();
-    if dropped > 0 {
-        cx.warn(
-            node.line,
-            format!("{name}: dropped {dropped} degenerate triangle(s)"),
-        );
-    }
-    if mesh.triangles.is_empty() {
-        return Err(cx.err(node.line, format!("{name} has no non-degenerate triangles")));
-    }
-    Ok(Shape::Hidden(HiddenObject {
-        name,
-        mesh,
-        albedo,
-        two_sided,
-    }))
-}
-
-/// Whether all triangles of `mesh` have the same normal (then Mitsuba's smoothed vertex
-/// normals equal the face normals).
-fn is_planar(mesh: &TriMesh) -> bool {
-    let normal = |t: usize| {
-        let [a, b, c] = mesh.triangle(t);
-        (b - a).cross(c - a).normalize_or_zero()
-    };
-    let n0 = normal(0);
-    (1..mesh.triangles.len()).all(|t| normal(t).dot(n0) > 1.0 - 1e-5)
-}
-
-/// `(albedo, two_sided)` of a `<bsdf>` or a `<ref id="..">` to a top-level one.
-fn bsdf(cx: &mut Cx, node: &Node, bsdfs: &HashMap<&str, &Node>, depth: u32) -> Result<(f32, bool)> {
-    if depth > 4 {
-        return Err(cx.err(
-            node.line,
-            "BSDFs nested or referenced too deeply (a reference cycle?)",
-        ));
-    }
-    if node.tag == "ref" {
-        if let Some(a) = node.attrs.iter().find(|a| a.key != "id" && a.key != "name") {
-            return Err(cx.err(a.line, format!("<ref>: unknown attribute '{}'", a.key)));
-        }
-        let id = node
-            .attr("id")
-            .ok_or_else(|| cx.err(node.line, "<ref> needs an id"))?;
-        let target = bsdfs.get(id).ok_or_else(|| {
-            cx.err(
-                node.line,
-                format!("<ref id=\"{id}\">: no top-level <bsdf id=\"{id}\">"),
-            )
-        })?;
-        return bsdf(cx, target, bsdfs, depth + 1);
-    }
-    let mut p = Plugin::new(node, cx)?;
-    let out = match p.kind() {
-        "diffuse" => {
-            let r = p.mono(cx, "reflectance")?.unwrap_or(0.5);
-            if !(0.0..=1.0).contains(&r) {
-                return Err(cx.err(p.line_of("reflectance"), format!("diffuse reflectance must be in [0, 1], got {r}")));
-            }
-            (r, false)
-        }
-        "twosided" => {
-            let inner = p.object(cx, &["bsdf", "ref"])?.ok_or_else(|| cx.err(node.line, "<bsdf type=\"twosided\"> needs one nested diffuse <bsdf> (or <ref>)"))?;
-            (bsdf(cx, inner, bsdfs, depth + 1)?.0, true)
-        }
-        k => return Err(cx.err(node.line, format!("bsdf type '{k}' is not supported: Umbra's surfaces are Lambertian (diffuse, or twosided around a diffuse)"))),
-    };
-    p.finish(cx)?;
-    Ok(out)
-}
-
-fn sensor(cx: &mut Cx, node: &Node) -> Result<WallCfg> {
-    let mut p = Plugin::new(node, cx)?;
-    if p.kind() != "nlos_capture_meter" {
-        return Err(cx.err(
-            node.line,
-            format!(
-                "sensor type '{}' is not supported: the relay wall carries a nlos_capture_meter",
-                p.kind()
-            ),
-        ));
-    }
-    let sensor_origin = p.point(cx, "sensor_origin")?.unwrap_or(Vec3::ZERO);
-    let sensor_afl = p
-        .bool(cx, "account_first_and_last_bounces")?
-        .map(|b| (b, p.line_of("account_first_and_last_bounces")));
-    let film_node = p.object(cx, &["film"])?.ok_or_else(|| {
-        cx.err(
-            node.line,
-            "the nlos_capture_meter needs a <film type=\"transient_hdr_film\">",
-        )
-    })?;
-    let sampler = p.object(cx, &["sampler"])?;
-    p.finish(cx)?;
-
-    let mut f = Plugin::new(film_node, cx)?;
-    if f.kind() != "transient_hdr_film" {
-        return Err(cx.err(
-            film_node.line,
-            format!(
-                "film type '{}' is not supported: use transient_hdr_film",
-                f.kind()
-            ),
-        ));
-    }
-    let count = |f: &mut Plugin, cx: &Cx, name: &str, default: Option<i64>| -> Result<u32> {
-        let (v, line) = match (f.int(cx, name)?, default) {
-            (Some(v), _) => v,
-            (None, Some(d)) => (d, film_node.line),
-            (None, None) => {
-                return Err(cx.err(
-                    film_node.line,
-                    format!("the transient_hdr_film needs <integer name=\"{name}\">"),
-                ))
-            }
-        };
-        u32::try_from(v)
-            .ok()
-            .filter(|&v| v > 0)
-            .ok_or_else(|| cx.err(line, format!("{name} must be a positive count, got {v}")))
-    };
-    let nx = count(&mut f, cx, "width", None)?;
-    let ny = count(&mut f, cx, "height", None)?;
-    let temporal_bins = count(&mut f, cx, "temporal_bins", Some(2048))?;
-    let bin_width_opl = f.float(cx, "bin_width_opl")?.unwrap_or(0.003);
-    if bin_width_opl <= 0.0 {
-        return Err(cx.err(
-            f.line_of("bin_width_opl"),
-            format!("bin_width_opl must be > 0, got {bin_width_opl}"),
-        ));
-    }
-    let start_opl = f.float(cx, "start_opl")?.unwrap_or(0.0);
-    let exhaustive_scan = (
-        f.bool(cx, "exhaustive_scan")?.unwrap_or(false),
-        f.line_of("exhaustive_scan"),
-    );
-    let lw = f.int(cx, "laser_scan_width")?.map(|v| v.0);
-    let lh = f.int(cx, "laser_scan_height")?.map(|v| v.0);
-    let laser_scan = (lw.zip(lh), f.line_of("laser_scan_width"));
-    if let Some(r) = f.object(cx, &["rfilter"])? {
-        let mut rf = Plugin::new(r, cx)?;
-        if rf.kind() != "box" {
-            return Err(cx.err(
-                r.line,
-                format!(
-                    "rfilter type '{}': mitransient's transient film supports only the box filter",
-                    rf.kind()
-                ),
-            ));
-        }
-        let _radius = rf.float(cx, "radius")?; // mitransient bins by pixel whatever the radius.
-        rf.finish(cx)?;
-    }
-    f.finish(cx)?;
-
-    let (mut spp, mut seed) = (4u32, 0u64); // Mitsuba's independent sampler defaults.
-    if let Some(s) = sampler {
-        let mut sp = Plugin::new(s, cx)?;
-        if sp.kind() != "independent" {
-            return Err(cx.err(
-                s.line,
-                format!(
-                    "sampler type '{}' is not supported: use independent",
-                    sp.kind()
-                ),
-            ));
-        }
-        if let Some((n, line)) = sp.int(cx, "sample_count")? {
-            spp = u32::try_from(n).ok().filter(|&n| n > 0).ok_or_else(|| {
-                cx.err(
-                    line,
-                    format!("sample_count must be a positive count, got {n}"),
-                )
-            })?;
-        }
-        if let Some((n, line)) = sp.int(cx, "seed")? {
-            seed = u64::try_from(n)
-                .map_err(|_| cx.err(line, format!("seed must be >= 0, got {n}")))?;
-        }
-        sp.finish(cx)?;
-    }
-    let zero = Vec3::ZERO;
-    Ok(WallCfg {
-        wall: RelayWall {
-            center: zero,
-            axis_u: zero,
-            axis_v: zero,
-            albedo: 0.0,
-        },
-        scan: ScanGrid {
-            nx,
-            ny,
-            center: zero,
-            axis_u: zero,
-            axis_v: zero,
-        },
-        film: FilmSpec {
-            temporal_bins,
-            bin_width_opl,
-            start_opl,
-            kernel: KernelSpec::Box,
-        },
-        sensor_origin,
-        sensor_afl,
-        spp,
-        seed,
-        exhaustive_scan,
-        laser_scan,
-    })
 }
 
 fn projector(cx: &mut Cx, node: &Node, wall: &RelayWall, capture: CaptureType) -> Result<Laser> {

@@ -141,10 +141,9 @@ pub fn sample<S: Sink>(
         if j + 1 > max_bounces {
             break;
         }
-        let u_pick = sampler.next_1d();
+        let [u_pick, u_rr] = sampler.next_2d();
         let u_dir = sampler.next_2d();
         let u_spot = sampler.next_2d();
-        let u_rr = sampler.next_1d();
         let (c_bsdf, c_hg) = technique_probabilities(tech, x.on_wall);
 
         // --- continuation: sample y_j by one of the two techniques -----------------

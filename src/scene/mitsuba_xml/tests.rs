@@ -461,3 +461,26 @@ fn flip_normals_and_smooth_normal_warning() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn hidden_geometry_flags_need_hidden_geometry_sampling() {
+    // mitransient ignores do_rroulette and includes_relay_wall without HGS; they are
+    // still known parameters.
+    let t = edit(
+        r#"name="nlos_hidden_geometry_sampling" value="true""#,
+        r#"name="nlos_hidden_geometry_sampling" value="false""#,
+    )
+    .replace(
+        r#"name="nlos_hidden_geometry_sampling_includes_relay_wall" value="false""#,
+        r#"name="nlos_hidden_geometry_sampling_includes_relay_wall" value="true""#,
+    );
+    let tech = parse_str(&t).unwrap().render.techniques;
+    assert!(!tech.hidden_geometry_sampling && tech.bsdf_sampling);
+    assert!(!tech.hidden_geometry_includes_wall);
+    let t = edit(
+        r#"name="nlos_hidden_geometry_sampling_includes_relay_wall" value="false""#,
+        r#"name="nlos_hidden_geometry_sampling_includes_relay_wall" value="true""#,
+    );
+    let tech = parse_str(&t).unwrap().render.techniques;
+    assert!(tech.hidden_geometry_sampling && tech.hidden_geometry_includes_wall);
+}

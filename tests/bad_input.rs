@@ -42,14 +42,38 @@ fn good_scene_loads() {
 #[test]
 fn errors_name_file_and_field() {
     let cases = [
-        (GOOD.replace("temporal_bins = 10", "temporal_bins = -4"), "test.toml: film.temporal_bins: must be a positive count, got -4"),
-        (GOOD.replace("origin = [0.0, 0.0, 1.0]", "origin = [0.0, 0.0, -1.0]"), "test.toml: laser.origin: the laser is behind"),
-        (GOOD.replace("translate = [0.0, 0.0, 1.0]", "translate = [0.0, nan, 1.0]"), "test.toml: objects[0].transform: translate must be finite"),
-        (GOOD.replace("bin_width_opl = 0.1", "bin_width_opl = 0.0"), "test.toml: film.bin_width_opl: must be > 0"),
-        (GOOD.replace("capture_type = \"single\"", "capture_type = \"sweep\""), "test.toml: capture_type: 'sweep' is not one of"),
-        (GOOD.replace("target = [0.1, 0.0, 0.0]", "target = [0.1, 0.0, 0.5]"), "test.toml: laser.target: the laser target"),
-        (GOOD.replace("[film]", "[film]\nkernel = \"gaussian\""), "test.toml: film.sigma_opl: kernel = \"gaussian\" needs sigma_opl"),
-        (format!("{GOOD}\n[render]\nspp = 0\n"), "test.toml: render.spp: must be at least 1"),
+        (
+            GOOD.replace("temporal_bins = 10", "temporal_bins = -4"),
+            "test.toml: film.temporal_bins: must be a positive count, got -4",
+        ),
+        (
+            GOOD.replace("origin = [0.0, 0.0, 1.0]", "origin = [0.0, 0.0, -1.0]"),
+            "test.toml: laser.origin: the laser is behind",
+        ),
+        (
+            GOOD.replace("translate = [0.0, 0.0, 1.0]", "translate = [0.0, nan, 1.0]"),
+            "test.toml: objects[0].transform: translate must be finite",
+        ),
+        (
+            GOOD.replace("bin_width_opl = 0.1", "bin_width_opl = 0.0"),
+            "test.toml: film.bin_width_opl: must be > 0",
+        ),
+        (
+            GOOD.replace("capture_type = \"single\"", "capture_type = \"sweep\""),
+            "test.toml: capture_type: 'sweep' is not one of",
+        ),
+        (
+            GOOD.replace("target = [0.1, 0.0, 0.0]", "target = [0.1, 0.0, 0.5]"),
+            "test.toml: laser.target: the laser target",
+        ),
+        (
+            GOOD.replace("[film]", "[film]\nkernel = \"gaussian\""),
+            "test.toml: film.sigma_opl: kernel = \"gaussian\" needs sigma_opl",
+        ),
+        (
+            format!("{GOOD}\n[render]\nspp = 0\n"),
+            "test.toml: render.spp: must be at least 1",
+        ),
     ];
     for (toml, want) in cases {
         let e = err_of(&toml);
@@ -57,7 +81,10 @@ fn errors_name_file_and_field() {
     }
     // A typo is an error with its line, not a silent default.
     let e = err_of(&GOOD.replace("bin_width_opl", "bin_widht_opl"));
-    assert!(e.starts_with("test.toml:") && e.contains("bin_widht_opl"), "{e}");
+    assert!(
+        e.starts_with("test.toml:") && e.contains("bin_widht_opl"),
+        "{e}"
+    );
     let e = err_of(&GOOD.replace("[scan]", "[scan"));
     assert!(e.starts_with("test.toml:8:"), "{e}");
 }
@@ -67,23 +94,40 @@ fn missing_and_malformed_files() {
     let dir = std::env::temp_dir().join(format!("umbra-bad-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     // Missing scene file.
-    let e = umbra::Scene::load(&dir.join("nope.toml")).unwrap_err().to_string();
+    let e = umbra::Scene::load(&dir.join("nope.toml"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("nope.toml") && e.contains("No such file"), "{e}");
     // Missing OBJ named by the scene.
     std::fs::write(dir.join("s.toml"), GOOD.replace("sq.obj", "missing.obj")).unwrap();
-    let e = umbra::Scene::load(&dir.join("s.toml")).unwrap_err().to_string();
+    let e = umbra::Scene::load(&dir.join("s.toml"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("missing.obj"), "{e}");
     // Malformed OBJ: the line is named.
     std::fs::write(dir.join("s.toml"), GOOD).unwrap();
-    std::fs::write(dir.join("sq.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 zero\nf 1 2 3\n").unwrap();
-    let e = umbra::Scene::load(&dir.join("s.toml")).unwrap_err().to_string();
+    std::fs::write(
+        dir.join("sq.obj"),
+        "v 0 0 0\nv 1 0 0\nv 0 1 zero\nf 1 2 3\n",
+    )
+    .unwrap();
+    let e = umbra::Scene::load(&dir.join("s.toml"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("sq.obj:3:") && e.contains("zero"), "{e}");
     // Only degenerate faces.
     std::fs::write(dir.join("sq.obj"), "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n").unwrap();
-    let e = umbra::Scene::load(&dir.join("s.toml")).unwrap_err().to_string();
-    assert!(e.contains("objects[0]") && e.contains("no non-degenerate"), "{e}");
+    let e = umbra::Scene::load(&dir.join("s.toml"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("objects[0]") && e.contains("no non-degenerate"),
+        "{e}"
+    );
     // Unknown extension.
-    let e = umbra::Scene::load(&dir.join("s.json")).unwrap_err().to_string();
+    let e = umbra::Scene::load(&dir.join("s.json"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("s.json") && e.contains(".toml"), "{e}");
     std::fs::remove_dir_all(&dir).ok();
 }

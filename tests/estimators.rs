@@ -58,7 +58,11 @@ fn t_scene(capture: &str, render: &str) -> Scene {
     let floor = "v -0.5 -0.3 0.3\nv 0.5 -0.3 0.3\nv 0.5 -0.1 1.0\nv -0.5 -0.1 1.0\nf 1 2 3 4\n";
     scene(
         &base_toml(capture, render),
-        &[("t.obj", T_OBJ), ("occluder.obj", &occluder), ("floor.obj", floor)],
+        &[
+            ("t.obj", T_OBJ),
+            ("occluder.obj", &occluder),
+            ("floor.obj", floor),
+        ],
     )
 }
 
@@ -73,9 +77,17 @@ fn assert_same_power(name: &str, a: (f64, f64), b: (f64, f64), max_sigma: f64) {
     let z = (a.0 - b.0) / sigma;
     eprintln!(
         "{name}: {:.6e} ± {:.2e} vs {:.6e} ± {:.2e}: Δ = {:+.3} % (z = {z:+.2})",
-        a.0, a.1, b.0, b.1, 100.0 * (a.0 - b.0) / b.0
+        a.0,
+        a.1,
+        b.0,
+        b.1,
+        100.0 * (a.0 - b.0) / b.0
     );
-    assert!(sigma / b.0.abs() < max_sigma, "{name}: test too weak, σ = {:.3} %", 100.0 * sigma / b.0);
+    assert!(
+        sigma / b.0.abs() < max_sigma,
+        "{name}: test too weak, σ = {:.3} %",
+        100.0 * sigma / b.0
+    );
     assert!(z.abs() < 4.5, "{name}: estimates differ by {z:.1} σ");
 }
 
@@ -91,8 +103,16 @@ fn path_filtered_to_three_bounces_equals_mc3() {
 
 #[test]
 fn ablation_three_bounce_without_hidden_geometry_sampling() {
-    let with = total_energy(&t_scene("confocal", "filter_bounces = 3"), Model::Path, 4096, 8);
-    let s = t_scene("confocal", "filter_bounces = 3\nhidden_geometry_sampling = false");
+    let with = total_energy(
+        &t_scene("confocal", "filter_bounces = 3"),
+        Model::Path,
+        4096,
+        8,
+    );
+    let s = t_scene(
+        "confocal",
+        "filter_bounces = 3\nhidden_geometry_sampling = false",
+    );
     let without = total_energy(&s, Model::Path, 65536, 8);
     assert_same("confocal 3-bounce: BSDF-only vs MIS", without, with);
 }
@@ -104,7 +124,12 @@ fn ablation_multibounce_each_technique() {
     // bounces: x_s, y1, wall, y2, x_l.)
     let r = "max_bounces = 4";
     let both = total_energy(&t_scene("single", r), Model::Path, 16384, 8);
-    let hg_only = total_energy(&t_scene("single", &format!("{r}\nbsdf_sampling = false")), Model::Path, 16384, 8);
+    let hg_only = total_energy(
+        &t_scene("single", &format!("{r}\nbsdf_sampling = false")),
+        Model::Path,
+        16384,
+        8,
+    );
     assert_same("4 bounces: hidden-geometry only vs MIS", hg_only, both);
     let r = "max_bounces = 6";
     let both = total_energy(&t_scene("single", r), Model::Path, 16384, 8);
@@ -117,12 +142,19 @@ fn ablation_multibounce_each_technique() {
     assert_same("6 bounces: BSDF only vs MIS", bsdf_only, both);
     // With the wall in hidden-geometry sampling, it alone reaches every path again.
     let hg_wall = total_energy(
-        &t_scene("single", &format!("{r}\nbsdf_sampling = false\nhidden_geometry_includes_wall = true")),
+        &t_scene(
+            "single",
+            &format!("{r}\nbsdf_sampling = false\nhidden_geometry_includes_wall = true"),
+        ),
         Model::Path,
         65536,
         8,
     );
-    assert_same("6 bounces: hidden-geometry + wall only vs MIS", hg_wall, both);
+    assert_same(
+        "6 bounces: hidden-geometry + wall only vs MIS",
+        hg_wall,
+        both,
+    );
 }
 
 #[test]
@@ -132,7 +164,12 @@ fn ablation_laser_sampling_with_a_finite_spot() {
     let spot = |r: &str| t_scene("single", r).with_spot(0.1);
     let r = "max_bounces = 4";
     let nee = total_energy(&spot(r), Model::Path, 16384, 8);
-    let no_nee = total_energy(&spot(&format!("{r}\nlaser_sampling = false")), Model::Path, 262144, 8);
+    let no_nee = total_energy(
+        &spot(&format!("{r}\nlaser_sampling = false")),
+        Model::Path,
+        262144,
+        8,
+    );
     assert_same_power("spot: without laser sampling vs with", no_nee, nee, 0.012);
     // mc3 over the lit disk = path filtered to three bounces with a finite spot.
     let mc3 = total_energy(&spot(""), Model::Mc3, 4096, 8);
@@ -154,7 +191,10 @@ impl WithSpot for Scene {
 fn same_output_for_any_thread_count() {
     let s = t_scene("confocal", "max_bounces = 6");
     let run = |threads| {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
         pool.install(|| render(&s, Model::Path, 3000, 42))
     };
     let a = run(1);

@@ -58,7 +58,8 @@ fn closed_form(s: &Scene) -> Vec<(f64, f64)> {
                 LaserEmission::Power(p) => p as f64,
                 LaserEmission::Irradiance { irradiance, .. } => {
                     let d = s.laser.origin - xl;
-                    PI * irradiance as f64 * (nw.dot(d.normalize()) as f64) / d.length_squared() as f64
+                    PI * irradiance as f64 * (nw.dot(d.normalize()) as f64)
+                        / d.length_squared() as f64
                 }
             };
             let rw = s.wall.albedo as f64 / PI;
@@ -74,13 +75,32 @@ fn check(s: &Scene, model: Model, spp: u32) {
     let got = totals(&t);
     let want = closed_form(s);
     let (mut sum_got, mut sum_want) = (0.0, 0.0);
-    for (m, ((g, (w, opl)), c)) in got.iter().zip(&want).zip(t.data.chunks(t.bins())).enumerate() {
+    for (m, ((g, (w, opl)), c)) in got
+        .iter()
+        .zip(&want)
+        .zip(t.data.chunks(t.bins()))
+        .enumerate()
+    {
         let rel = (g - w) / w;
-        assert!(rel.abs() < 0.01, "{model:?} {:?} point {m}: got {g:e}, formula {w:e} ({:+.3} %)", s.capture, rel * 100.0);
+        assert!(
+            rel.abs() < 0.01,
+            "{model:?} {:?} point {m}: got {g:e}, formula {w:e} ({:+.3} %)",
+            s.capture,
+            rel * 100.0
+        );
         // The pulse sits in the bin that holds the formula's OPL.
-        let peak = c.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).unwrap().0;
-        let want_bin = ((opl - s.film.start_opl as f64) / s.film.bin_width_opl as f64).floor() as usize;
-        assert!(peak.abs_diff(want_bin) <= 1, "point {m}: peak bin {peak}, formula bin {want_bin}");
+        let peak = c
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .unwrap()
+            .0;
+        let want_bin =
+            ((opl - s.film.start_opl as f64) / s.film.bin_width_opl as f64).floor() as usize;
+        assert!(
+            peak.abs_diff(want_bin) <= 1,
+            "point {m}: peak bin {peak}, formula bin {want_bin}"
+        );
         sum_got += g;
         sum_want += w;
     }
@@ -99,7 +119,11 @@ fn patch_single_mc3_and_path() {
 fn patch_confocal_mc3_and_path_with_irradiance_laser() {
     let s = patch_scene("confocal", "irradiance = 5.0\nfov = 0.2", "");
     check(&s, Model::Mc3, 1024);
-    let s = patch_scene("confocal", "irradiance = 5.0\nfov = 0.2", "filter_bounces = 3");
+    let s = patch_scene(
+        "confocal",
+        "irradiance = 5.0\nfov = 0.2",
+        "filter_bounces = 3",
+    );
     check(&s, Model::Path, 4096);
 }
 

@@ -11,7 +11,11 @@ use umbra::scene::{Model, Scene};
 use umbra::transport::{self, Progress, RenderOptions};
 
 #[derive(Parser)]
-#[command(name = "umbra", version, about = "Differentiable transient renderer for NLOS imaging")]
+#[command(
+    name = "umbra",
+    version,
+    about = "Differentiable transient renderer for NLOS imaging"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -57,6 +61,9 @@ struct RenderArgs {
     /// also on, the two are combined by multiple importance sampling.
     #[arg(long)]
     bsdf_sampling: Option<bool>,
+    /// Set a Mitsuba XML `$name` parameter (overrides its <default>), e.g. -D spp=64.
+    #[arg(short = 'D', value_name = "NAME=VALUE")]
+    define: Vec<String>,
     /// Do not write the PNG previews.
     #[arg(long)]
     no_preview: bool,
@@ -72,19 +79,33 @@ fn main() {
     };
     if let Err(e) = result {
         eprintln!("error: {e}");
-        std::process::exit(if matches!(e, umbra::Error::Cancelled) { 130 } else { 1 });
+        std::process::exit(if matches!(e, umbra::Error::Cancelled) {
+            130
+        } else {
+            1
+        });
     }
 }
 
-fn load_scene(path: Option<&Path>) -> umbra::Result<Scene> {
+fn load_scene(path: Option<&Path>, defines: &[String]) -> umbra::Result<Scene> {
+    let defines = defines
+        .iter()
+        .map(|d| match d.split_once('=') {
+            Some((k, v)) if !k.is_empty() => Ok((k.to_string(), v.to_string())),
+            _ => Err(umbra::Error::Invalid(format!(
+                "-D {d}: expected NAME=VALUE"
+            ))),
+        })
+        .collect::<umbra::Result<Vec<_>>>()?;
     match path {
-        Some(p) => Scene::load(p),
-        None => umbra::scene::default::default_scene(),
+        Some(p) => Scene::load_with_defines(p, &defines),
+        None if defines.is_empty() => umbra::scene::default::default_scene(),
+        None => Err(umbra::Error::Invalid("-D needs a Mitsuba XML scene".into())),
     }
 }
 
 fn render(args: RenderArgs) -> umbra::Result<()> {
-    let mut scene = load_scene(args.scene.as_deref())?;
+    let mut scene = load_scene(args.scene.as_deref(), &args.define)?;
     for w in &scene.warnings {
         eprintln!("warning: {w}");
     }
@@ -101,12 +122,16 @@ fn render(args: RenderArgs) -> umbra::Result<()> {
     }
     let t = &mut scene.render.techniques;
     t.laser_sampling = args.laser_sampling.unwrap_or(t.laser_sampling);
-    t.hidden_geometry_sampling = args.hidden_geometry_sampling.unwrap_or(t.hidden_geometry_sampling);
+    t.hidden_geometry_sampling = args
+        .hidden_geometry_sampling
+        .unwrap_or(t.hidden_geometry_sampling);
     t.bsdf_sampling = args.bsdf_sampling.unwrap_or(t.bsdf_sampling);
     let mut opts = RenderOptions::from_scene(&scene);
     if let Some(m) = &args.model {
         opts.model = Model::parse(m).ok_or_else(|| {
-            umbra::Error::Invalid(format!("--model: '{m}' is not one of tri3, mc3, path, auto"))
+            umbra::Error::Invalid(format!(
+                "--model: '{m}' is not one of tri3, mc3, path, auto"
+            ))
         })?;
     }
     if let Some(s) = args.spp {

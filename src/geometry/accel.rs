@@ -23,7 +23,10 @@ const BRUTE_FORCE_PRIMS: usize = 8;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SurfaceKind {
     /// Triangle `tri` of hidden object `object` (index into `Scene::objects`).
-    Hidden { object: u32, tri: u32 },
+    Hidden {
+        object: u32,
+        tri: u32,
+    },
     Wall,
 }
 

@@ -32,10 +32,9 @@ impl TriMesh {
             ..Default::default()
         };
         let mut reader = std::io::BufReader::new(text.as_bytes());
-        let (models, _) = tobj::load_obj_buf(&mut reader, &opts, |_| {
-            Err(tobj::LoadError::OpenFileFailed)
-        })
-        .map_err(|e| Error::scene(origin, format!("malformed OBJ: {e}")))?;
+        let (models, _) =
+            tobj::load_obj_buf(&mut reader, &opts, |_| Err(tobj::LoadError::OpenFileFailed))
+                .map_err(|e| Error::scene(origin, format!("malformed OBJ: {e}")))?;
         let mut mesh = TriMesh::default();
         for m in &models {
             let base = mesh.positions.len() as u32;
@@ -45,7 +44,10 @@ impl TriMesh {
             let n = (p.len() / 3) as u32;
             for t in m.mesh.indices.chunks_exact(3) {
                 if t.iter().any(|&i| i >= n) {
-                    return Err(Error::scene(origin, "malformed OBJ: face index out of range"));
+                    return Err(Error::scene(
+                        origin,
+                        "malformed OBJ: face index out of range",
+                    ));
                 }
                 mesh.triangles.push([base + t[0], base + t[1], base + t[2]]);
             }
@@ -159,7 +161,10 @@ mod tests {
     #[test]
     fn bad_obj_names_line() {
         let e = TriMesh::parse_obj("v 0 0 0\nv 1 nan 0\n", Path::new("x.obj")).unwrap_err();
-        assert_eq!(e.to_string(), "x.obj:2: vertex coordinate 'nan' is not a finite number");
+        assert_eq!(
+            e.to_string(),
+            "x.obj:2: vertex coordinate 'nan' is not a finite number"
+        );
         let e = TriMesh::parse_obj("v 0 0 0\nf 1 2 3\n", Path::new("x.obj")).unwrap_err();
         assert!(e.to_string().starts_with("x.obj:2:"), "{e}");
     }

@@ -56,7 +56,10 @@ impl AreaDistribution {
 
     /// Picks a triangle with `u_tri` and a uniform point on it with `u_bary`.
     pub fn sample(&self, u_tri: f32, u_bary: [f32; 2]) -> TriangleSample {
-        let i = self.cdf.partition_point(|&c| c <= u_tri).min(self.cdf.len() - 1);
+        let i = self
+            .cdf
+            .partition_point(|&c| c <= u_tri)
+            .min(self.cdf.len() - 1);
         TriangleSample {
             tri: i as u32,
             bary: uniform_triangle(u_bary),
@@ -111,7 +114,10 @@ pub fn concentric_disk(u: [f32; 2]) -> [f32; 2] {
     let (r, phi) = if a.abs() > b.abs() {
         (a, std::f32::consts::FRAC_PI_4 * (b / a))
     } else {
-        (b, std::f32::consts::FRAC_PI_2 - std::f32::consts::FRAC_PI_4 * (a / b))
+        (
+            b,
+            std::f32::consts::FRAC_PI_2 - std::f32::consts::FRAC_PI_4 * (a / b),
+        )
     };
     [r * phi.cos(), r * phi.sin()]
 }
@@ -133,7 +139,11 @@ mod tests {
     /// Pearson's chi-square test as Mitsuba's test suite runs it: cells with small
     /// expected counts pooled, then the p-value against the significance level.
     fn chi2_pvalue(observed: &[f64], expected: &[f64]) -> f64 {
-        let mut cells: Vec<(f64, f64)> = observed.iter().copied().zip(expected.iter().copied()).collect();
+        let mut cells: Vec<(f64, f64)> = observed
+            .iter()
+            .copied()
+            .zip(expected.iter().copied())
+            .collect();
         cells.sort_by(|a, b| a.1.partial_cmp(&b.1).unwrap());
         let (mut pooled_o, mut pooled_e) = (0.0, 0.0);
         let mut stat = 0.0;
@@ -166,8 +176,13 @@ mod tests {
             let d = cosine_hemisphere(n, s.next_2d());
             let ct = d.dir.dot(n).clamp(0.0, 1.0);
             let theta = ct.acos();
-            let phi = d.dir.dot(b).atan2(d.dir.dot(t)).rem_euclid(std::f32::consts::TAU);
-            let it = ((theta / std::f32::consts::FRAC_PI_2) * nt as f32).min(nt as f32 - 1.0) as usize;
+            let phi = d
+                .dir
+                .dot(b)
+                .atan2(d.dir.dot(t))
+                .rem_euclid(std::f32::consts::TAU);
+            let it =
+                ((theta / std::f32::consts::FRAC_PI_2) * nt as f32).min(nt as f32 - 1.0) as usize;
             let ip = ((phi / std::f32::consts::TAU) * np as f32).min(np as f32 - 1.0) as usize;
             obs[it * np + ip] += 1.0;
             // The pdf matches the density it claims.

@@ -10,10 +10,7 @@ use std::path::Path;
 pub fn write(path: &Path, t: &Transient) -> Result<()> {
     let width = t.bins();
     let height = t.data.len() / width.max(1);
-    let channel = exr::image::AnyChannel::new(
-        "Y",
-        exr::image::FlatSamples::F32(t.data.clone()),
-    );
+    let channel = exr::image::AnyChannel::new("Y", exr::image::FlatSamples::F32(t.data.clone()));
     let layer = exr::image::Layer::new(
         (width, height),
         exr::meta::header::LayerAttributes::named("transient"),

@@ -10,7 +10,12 @@ use std::path::Path;
 
 /// Writes a transient; the format follows the extension (`.npy` default, `.exr`).
 pub fn write_transient(path: &Path, t: &Transient) -> Result<()> {
-    match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
+    match path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .as_deref()
+    {
         Some("exr") => exr_out::write(path, t),
         Some("npy") | None => write_npy(path, t),
         Some(other) => Err(Error::Invalid(format!(
@@ -37,8 +42,9 @@ pub fn read_npy(path: &Path) -> Result<Transient> {
         Ok(a) => a,
         Err(_) => {
             let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-            let a: ArrayD<f64> = ndarray_npy::ReadNpyExt::read_npy(std::io::BufReader::new(file))
-                .map_err(|e| Error::scene(path, format!("not a float32/float64 .npy: {e}")))?;
+            let a: ArrayD<f64> =
+                ndarray_npy::ReadNpyExt::read_npy(std::io::BufReader::new(file))
+                    .map_err(|e| Error::scene(path, format!("not a float32/float64 .npy: {e}")))?;
             a.mapv(|v| v as f32)
         }
     };

@@ -26,7 +26,9 @@ pub fn write_previews(out: &Path, t: &Transient) -> Result<Vec<PathBuf>> {
 
     // Streak: rows = x along the middle scan row (x = 0 at the top), columns = time.
     let row = sy / 2;
-    let streak: Vec<f32> = (0..sx).flat_map(|ix| (0..bins).map(move |b| at(row, ix, b))).collect();
+    let streak: Vec<f32> = (0..sx)
+        .flat_map(|ix| (0..bins).map(move |b| at(row, ix, b)))
+        .collect();
     let p = name("streak");
     write_colormapped(&p, &normalise_sqrt(&streak), bins, sx)?;
     written.push(p);
@@ -50,7 +52,9 @@ pub fn write_previews(out: &Path, t: &Transient) -> Result<Vec<PathBuf>> {
                 if peak <= 1e-6 * global_peak || peak <= 0.0 {
                     return f32::NAN;
                 }
-                let first = (0..bins).find(|&b| at(iy, ix, b) >= 0.05 * peak).unwrap_or(0);
+                let first = (0..bins)
+                    .find(|&b| at(iy, ix, b) >= 0.05 * peak)
+                    .unwrap_or(0);
                 first as f32
             })
         })
@@ -62,7 +66,13 @@ pub fn write_previews(out: &Path, t: &Transient) -> Result<Vec<PathBuf>> {
     let span = (hi - lo).max(1.0);
     let arrival_n: Vec<f32> = arrival
         .iter()
-        .map(|&v| if v.is_finite() { 0.15 + 0.85 * (v - lo) / span } else { 0.0 })
+        .map(|&v| {
+            if v.is_finite() {
+                0.15 + 0.85 * (v - lo) / span
+            } else {
+                0.0
+            }
+        })
         .collect();
     let p = name("first_arrival");
     write_colormapped(&p, &arrival_n, sx, sy)?;
@@ -72,9 +82,19 @@ pub fn write_previews(out: &Path, t: &Transient) -> Result<Vec<PathBuf>> {
 
 /// Maps values to [0, 1] by `sqrt(v / max)`; negatives and non-finite to 0.
 fn normalise_sqrt(v: &[f32]) -> Vec<f32> {
-    let max = v.iter().cloned().filter(|x| x.is_finite()).fold(0.0f32, f32::max);
+    let max = v
+        .iter()
+        .cloned()
+        .filter(|x| x.is_finite())
+        .fold(0.0f32, f32::max);
     v.iter()
-        .map(|&x| if max > 0.0 && x > 0.0 { (x / max).sqrt() } else { 0.0 })
+        .map(|&x| {
+            if max > 0.0 && x > 0.0 {
+                (x / max).sqrt()
+            } else {
+                0.0
+            }
+        })
         .collect()
 }
 
@@ -91,7 +111,11 @@ pub fn inferno(t: f32) -> [u8; 3] {
         [0.9541, 0.4681, 0.0989],
         [0.9883, 0.9984, 0.6449],
     ];
-    let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 } * 8.0;
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    } * 8.0;
     let i = (t as usize).min(7);
     let f = t - i as f32;
     let c = |k: usize| ((C[i][k] * (1.0 - f) + C[i + 1][k] * f) * 255.0).round() as u8;

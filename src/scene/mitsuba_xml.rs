@@ -47,15 +47,30 @@ const DEFAULT_PROJECTOR_FOV: f32 = 34.0221;
 
 /// Reads a Mitsuba XML scene; relative OBJ filenames resolve against its folder.
 pub fn load(path: &Path) -> Result<Scene> {
+    load_with_defines(path, &[])
+}
+
+/// [`load`] with `$name` values set from outside (Mitsuba's `-D name=value`).
+pub fn load_with_defines(path: &Path, defines: &[(String, String)]) -> Result<Scene> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
-    parse(&text, path, &base)
+    parse_with_defines(&text, path, &base, defines)
 }
 
 /// Parses Mitsuba XML text. `origin` names it in messages; `base_dir` resolves relative
 /// OBJ filenames.
 pub fn parse(text: &str, origin: &Path, base_dir: &Path) -> Result<Scene> {
-    let root = tree::parse(text, origin)?;
+    parse_with_defines(text, origin, base_dir, &[])
+}
+
+/// [`parse`] with `$name` values set from outside (Mitsuba's `-D name=value`).
+pub fn parse_with_defines(
+    text: &str,
+    origin: &Path,
+    base_dir: &Path,
+    defines: &[(String, String)],
+) -> Result<Scene> {
+    let root = tree::parse(text, origin, defines)?;
     let mut cx = Cx {
         origin,
         warnings: Vec::new(),

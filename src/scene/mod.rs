@@ -119,9 +119,9 @@ pub struct Laser {
     /// Wall point hit in single capture (m).
     pub target: Vec3,
     pub emission: LaserEmission,
-    /// Radius of the lit spot on the wall (m). 0 = a point (the usual NLOS idealisation);
-    /// > 0 makes the spot a uniformly lit disk, which BSDF-sampled paths can hit, so the
-    /// renderer works with laser sampling switched off.
+    /// Radius of the lit spot on the wall (m). Zero makes it a point (the usual NLOS
+    /// idealisation); a positive radius makes the spot a uniformly lit disk, which
+    /// BSDF-sampled paths can hit, so the renderer works with laser sampling off.
     pub spot_radius: f32,
 }
 
@@ -264,10 +264,19 @@ pub struct Scene {
 impl Scene {
     /// Loads a scene file, choosing the reader by extension (`.toml` or `.xml`).
     pub fn load(path: &Path) -> Result<Scene> {
+        Self::load_with_defines(path, &[])
+    }
+
+    /// [`Scene::load`] with Mitsuba-style `-D name=value` defines (XML scenes only).
+    pub fn load_with_defines(path: &Path, defines: &[(String, String)]) -> Result<Scene> {
         let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
         match ext.to_ascii_lowercase().as_str() {
+            "toml" if !defines.is_empty() => Err(Error::scene(
+                path,
+                "-D name=value defines apply to Mitsuba XML scenes only",
+            )),
             "toml" => toml_format::load(path),
-            "xml" => mitsuba_xml::load(path),
+            "xml" => mitsuba_xml::load_with_defines(path, defines),
             _ => Err(Error::scene(
                 path,
                 "unknown scene format: the extension must be .toml (Umbra) or .xml (Mitsuba)",
@@ -340,7 +349,10 @@ impl Scene {
             return err("wall.size", "the relay wall has zero area".into());
         }
         if !(0.0..=1.0).contains(&self.wall.albedo) {
-            return err("wall.albedo", format!("must be in [0, 1], got {}", self.wall.albedo));
+            return err(
+                "wall.albedo",
+                format!("must be in [0, 1], got {}", self.wall.albedo),
+            );
         }
         if self.scan.nx == 0 || self.scan.ny == 0 {
             return err("scan.resolution", "must be at least 1 x 1".into());
@@ -362,23 +374,33 @@ impl Scene {
         if self.capture == CaptureType::Single && !on_plane(self.laser.target) {
             return err(
                 "laser.target",
-                format!("the laser target {} is not on the relay wall plane", self.laser.target),
+                format!(
+                    "the laser target {} is not on the relay wall plane",
+                    self.laser.target
+                ),
             );
         }
         if !on_plane(self.scan.center)
             || self.scan.axis_u.dot(n_w).abs() > 1e-4
             || self.scan.axis_v.dot(n_w).abs() > 1e-4
         {
-            return err("scan", "the scan rectangle must lie on the relay wall plane".into());
+            return err(
+                "scan",
+                "the scan rectangle must lie on the relay wall plane".into(),
+            );
         }
         match self.laser.emission {
             LaserEmission::Power(p) if !(p.is_finite() && p >= 0.0) => {
                 return err("laser.power", format!("must be finite and >= 0, got {p}"))
             }
-            LaserEmission::Irradiance { irradiance, fov_deg }
-                if !(irradiance.is_finite() && irradiance >= 0.0 && fov_deg.is_finite()) =>
-            {
-                return err("laser.irradiance", format!("must be finite and >= 0, got {irradiance}"))
+            LaserEmission::Irradiance {
+                irradiance,
+                fov_deg,
+            } if !(irradiance.is_finite() && irradiance >= 0.0 && fov_deg.is_finite()) => {
+                return err(
+                    "laser.irradiance",
+                    format!("must be finite and >= 0, got {irradiance}"),
+                )
             }
             _ => {}
         }
@@ -390,7 +412,10 @@ impl Scene {
             return err("film.temporal_bins", "must be at least 1".into());
         }
         if !(f.bin_width_opl.is_finite() && f.bin_width_opl > 0.0) {
-            return err("film.bin_width_opl", format!("must be > 0, got {}", f.bin_width_opl));
+            return err(
+                "film.bin_width_opl",
+                format!("must be > 0, got {}", f.bin_width_opl),
+            );
         }
         if !f.start_opl.is_finite() {
             return err("film.start_opl", "must be finite".into());
@@ -402,14 +427,23 @@ impl Scene {
         }
         for (i, o) in self.objects.iter().enumerate() {
             if !(0.0..=1.0).contains(&o.albedo) {
-                return err(&format!("objects[{i}].albedo"), format!("must be in [0, 1], got {}", o.albedo));
+                return err(
+                    &format!("objects[{i}].albedo"),
+                    format!("must be in [0, 1], got {}", o.albedo),
+                );
             }
             if let Some(bad) = o.mesh.positions.iter().position(|p| !p.is_finite()) {
-                return err(&format!("objects[{i}] ({})", o.name), format!("vertex {bad} is not finite"));
+                return err(
+                    &format!("objects[{i}] ({})", o.name),
+                    format!("vertex {bad} is not finite"),
+                );
             }
             if let Some(a) = &o.mesh.vertex_albedo {
                 if a.iter().any(|v| !(0.0..=1.0).contains(v)) {
-                    return err(&format!("objects[{i}].vertex_albedo"), "must be in [0, 1]".into());
+                    return err(
+                        &format!("objects[{i}].vertex_albedo"),
+                        "must be in [0, 1]".into(),
+                    );
                 }
             }
         }
@@ -418,7 +452,10 @@ impl Scene {
             return err("render.spp", "must be at least 1".into());
         }
         if r.max_bounces < 3 {
-            return err("render.max_depth", "NLOS paths need at least 3 bounces".into());
+            return err(
+                "render.max_depth",
+                "NLOS paths need at least 3 bounces".into(),
+            );
         }
         Ok(())
     }

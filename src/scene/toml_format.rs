@@ -209,7 +209,13 @@ pub fn parse(
     let f: File = toml::from_str(text).map_err(|e| {
         let line = e
             .span()
-            .map(|s| text.as_bytes()[..s.start.min(text.len())].iter().filter(|&&b| b == b'\n').count() + 1)
+            .map(|s| {
+                text.as_bytes()[..s.start.min(text.len())]
+                    .iter()
+                    .filter(|&&b| b == b'\n')
+                    .count()
+                    + 1
+            })
             .unwrap_or(0);
         Error::line(origin, line, e.message().to_string())
     })?;
@@ -218,19 +224,28 @@ pub fn parse(
     let capture = CaptureType::parse(&f.capture_type).ok_or_else(|| {
         field(
             "capture_type",
-            format!("'{}' is not one of single, confocal, exhaustive", f.capture_type),
+            format!(
+                "'{}' is not one of single, confocal, exhaustive",
+                f.capture_type
+            ),
         )
     })?;
 
     let normal = v3(f.wall.normal);
     let up = v3(f.wall.up);
     if !(normal.is_finite() && up.is_finite()) || normal.length() < 1e-6 {
-        return Err(field("wall.normal", "must be a finite non-zero vector".into()));
+        return Err(field(
+            "wall.normal",
+            "must be a finite non-zero vector".into(),
+        ));
     }
     let normal = normal.normalize();
     let e_u = up.cross(normal);
     if e_u.length() < 1e-6 {
-        return Err(field("wall.up", "must not be parallel to wall.normal".into()));
+        return Err(field(
+            "wall.up",
+            "must not be parallel to wall.normal".into(),
+        ));
     }
     let e_u = e_u.normalize();
     let e_v = normal.cross(e_u);
@@ -241,7 +256,10 @@ pub fn parse(
         albedo: f.wall.albedo,
     };
     if !(f.wall.size[0] > 0.0 && f.wall.size[1] > 0.0) {
-        return Err(field("wall.size", format!("must be positive, got {:?}", f.wall.size)));
+        return Err(field(
+            "wall.size",
+            format!("must be positive, got {:?}", f.wall.size),
+        ));
     }
 
     let emission = match (f.laser.power, f.laser.irradiance) {
@@ -252,7 +270,10 @@ pub fn parse(
         },
         (None, None) => LaserEmission::Power(1.0),
         (Some(_), Some(_)) => {
-            return Err(field("laser", "give either power or irradiance, not both".into()))
+            return Err(field(
+                "laser",
+                "give either power or irradiance, not both".into(),
+            ))
         }
     };
     let laser = Laser {
@@ -266,7 +287,10 @@ pub fn parse(
     };
     let scan_size = f.scan.size.unwrap_or(f.wall.size);
     if !(scan_size[0] > 0.0 && scan_size[1] > 0.0) {
-        return Err(field("scan.size", format!("must be positive, got {scan_size:?}")));
+        return Err(field(
+            "scan.size",
+            format!("must be positive, got {scan_size:?}"),
+        ));
     }
     let scan = ScanGrid {
         nx: f.scan.resolution[0],
@@ -285,11 +309,17 @@ pub fn parse(
     let kernel = match (f.film.kernel.as_str(), f.film.sigma_opl) {
         ("box", None) => KernelSpec::Box,
         ("box", Some(_)) => {
-            return Err(field("film.sigma_opl", "only used with kernel = \"gaussian\"".into()))
+            return Err(field(
+                "film.sigma_opl",
+                "only used with kernel = \"gaussian\"".into(),
+            ))
         }
         ("gaussian", Some(s)) => KernelSpec::Gaussian { sigma_opl: s },
         ("gaussian", None) => {
-            return Err(field("film.sigma_opl", "kernel = \"gaussian\" needs sigma_opl (m)".into()))
+            return Err(field(
+                "film.sigma_opl",
+                "kernel = \"gaussian\" needs sigma_opl (m)".into(),
+            ))
         }
         (k, _) => {
             return Err(field(
@@ -308,8 +338,8 @@ pub fn parse(
     let mut warnings = Vec::new();
     let mut objects = Vec::new();
     for (i, o) in f.objects.iter().enumerate() {
-        let xf = transform(&o.transform)
-            .map_err(|m| field(&format!("objects[{i}].transform"), m))?;
+        let xf =
+            transform(&o.transform).map_err(|m| field(&format!("objects[{i}].transform"), m))?;
         let mut mesh = load_mesh(&o.file)?;
         mesh.transform(&xf);
         let dropped = mesh.drop_degenerate();
@@ -326,7 +356,10 @@ pub fn parse(
             ));
         }
         if mesh.triangles.is_empty() {
-            return Err(field(&format!("objects[{i}]"), format!("{name} has no non-degenerate triangles")));
+            return Err(field(
+                &format!("objects[{i}]"),
+                format!("{name} has no non-degenerate triangles"),
+            ));
         }
         objects.push(HiddenObject {
             name,
@@ -337,12 +370,21 @@ pub fn parse(
     }
 
     let r = &f.render;
-    let model = Model::parse(&r.model)
-        .ok_or_else(|| field("render.model", format!("'{}' is not one of tri3, mc3, path, auto", r.model)))?;
+    let model = Model::parse(&r.model).ok_or_else(|| {
+        field(
+            "render.model",
+            format!("'{}' is not one of tri3, mc3, path, auto", r.model),
+        )
+    })?;
     let max_bounces = match r.max_bounces {
         -1 => u32::MAX,
         n if n >= 3 && n <= u32::MAX as i64 => n as u32,
-        n => return Err(field("render.max_bounces", format!("must be -1 (unbounded) or >= 3, got {n}"))),
+        n => {
+            return Err(field(
+                "render.max_bounces",
+                format!("must be -1 (unbounded) or >= 3, got {n}"),
+            ))
+        }
     };
     let render = RenderSettings {
         spp: r.spp,

@@ -220,45 +220,43 @@ pub fn render(
     let n_blocks = opts.spp.div_ceil(BLOCK_SPP);
     let mut data = vec![0.0f32; scene.num_measurements() * bins];
     let cancelled = AtomicBool::new(false);
-    data.par_chunks_mut(bins)
-        .enumerate()
-        .for_each(|(m, out)| {
-            let ctx = MeasurementCtx::new(scene, geom, &film, m);
-            let blocks: Vec<Option<Vec<f64>>> = (0..n_blocks)
-                .into_par_iter()
-                .map(|b| {
-                    if cancelled.load(Ordering::Relaxed)
-                        || progress.is_some_and(|p| p.cancel.load(Ordering::Relaxed))
-                    {
-                        cancelled.store(true, Ordering::Relaxed);
-                        return None;
-                    }
-                    let first = b * BLOCK_SPP;
-                    let last = (first + BLOCK_SPP).min(opts.spp);
-                    let mut hist = vec![0.0f64; bins];
-                    let mut sink = HistogramSink {
-                        film: &film,
-                        hist: &mut hist,
-                    };
-                    run_samples(model, &ctx, opts.seed, m as u64, first..last, &mut sink);
-                    if let Some(p) = progress {
-                        p.samples_done
-                            .fetch_add((last - first) as u64, Ordering::Relaxed);
-                    }
-                    Some(hist)
-                })
-                .collect();
-            let inv_spp = 1.0 / opts.spp as f64;
-            let mut acc = vec![0.0f64; bins];
-            for h in blocks.into_iter().flatten() {
-                for (a, v) in acc.iter_mut().zip(h) {
-                    *a += v;
+    data.par_chunks_mut(bins).enumerate().for_each(|(m, out)| {
+        let ctx = MeasurementCtx::new(scene, geom, &film, m);
+        let blocks: Vec<Option<Vec<f64>>> = (0..n_blocks)
+            .into_par_iter()
+            .map(|b| {
+                if cancelled.load(Ordering::Relaxed)
+                    || progress.is_some_and(|p| p.cancel.load(Ordering::Relaxed))
+                {
+                    cancelled.store(true, Ordering::Relaxed);
+                    return None;
                 }
+                let first = b * BLOCK_SPP;
+                let last = (first + BLOCK_SPP).min(opts.spp);
+                let mut hist = vec![0.0f64; bins];
+                let mut sink = HistogramSink {
+                    film: &film,
+                    hist: &mut hist,
+                };
+                run_samples(model, &ctx, opts.seed, m as u64, first..last, &mut sink);
+                if let Some(p) = progress {
+                    p.samples_done
+                        .fetch_add((last - first) as u64, Ordering::Relaxed);
+                }
+                Some(hist)
+            })
+            .collect();
+        let inv_spp = 1.0 / opts.spp as f64;
+        let mut acc = vec![0.0f64; bins];
+        for h in blocks.into_iter().flatten() {
+            for (a, v) in acc.iter_mut().zip(h) {
+                *a += v;
             }
-            for (o, a) in out.iter_mut().zip(acc) {
-                *o = (a * inv_spp) as f32;
-            }
-        });
+        }
+        for (o, a) in out.iter_mut().zip(acc) {
+            *o = (a * inv_spp) as f32;
+        }
+    });
     if cancelled.load(Ordering::Relaxed) {
         return Err(Error::Cancelled);
     }

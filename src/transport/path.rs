@@ -36,13 +36,11 @@
 //! together; not laser sampling with a point spot). Does not: non-Lambertian BRDFs,
 //! participating media, a non-planar wall.
 
-use super::{
-    sample_spot, scatter_cosines, Contribution, MeasurementCtx, PathVertex, Sink,
-};
+use super::{sample_spot, scatter_cosines, Contribution, MeasurementCtx, PathVertex, Sink};
 use crate::geometry::sampling::cosine_hemisphere;
 use crate::geometry::SurfaceKind;
-use crate::scene::Techniques;
 use crate::rng::Sampler;
+use crate::scene::Techniques;
 use glam::Vec3;
 use std::f32::consts::{FRAC_1_PI, PI};
 
@@ -158,7 +156,12 @@ pub fn sample<S: Sink>(
             let (y, n, kind, flat) = if ts.tri < n_hidden {
                 let tri = &geom.hidden[ts.tri as usize];
                 let (object, t) = geom.flat_to_local[ts.tri as usize];
-                (tri.point(ts.bary), tri.n, SurfaceKind::Hidden { object, tri: t }, ts.tri)
+                (
+                    tri.point(ts.bary),
+                    tri.n,
+                    SurfaceKind::Hidden { object, tri: t },
+                    ts.tri,
+                )
             } else {
                 let [a, b, c] = geom.wall_tris[(ts.tri - n_hidden) as usize];
                 let [b1, b2] = ts.bary;
@@ -215,7 +218,14 @@ pub fn sample<S: Sink>(
                     };
                     let total_opl = opl + ctx.opl_laser_leg(y_p);
                     if total_opl >= ctx.opl_min && total_opl < ctx.opl_max {
-                        emit(scratch, sink, y_vertex, total_opl, beta * spot_radiance * w_mis, j + 1);
+                        emit(
+                            scratch,
+                            sink,
+                            y_vertex,
+                            total_opl,
+                            beta * spot_radiance * w_mis,
+                            j + 1,
+                        );
                     }
                 }
                 Vertex {
@@ -265,7 +275,14 @@ pub fn sample<S: Sink>(
                         };
                         if weight > 0.0 && !geom.occluded(y_p, x_l) {
                             scratch.vertices.push(y_vertex);
-                            emit(scratch, sink, ctx.wall_vertex(x_l), total_opl, weight, j + 2);
+                            emit(
+                                scratch,
+                                sink,
+                                ctx.wall_vertex(x_l),
+                                total_opl,
+                                weight,
+                                j + 2,
+                            );
                             scratch.vertices.pop();
                         }
                     }

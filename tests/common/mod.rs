@@ -14,12 +14,16 @@ pub fn scene(toml: &str, objs: &[(&str, &str)]) -> Scene {
 }
 
 pub fn try_scene(toml: &str, objs: &[(&str, &str)]) -> umbra::Result<Scene> {
-    let objs: Vec<(String, String)> = objs.iter().map(|(a, b)| (a.to_string(), b.to_string())).collect();
-    toml_format::parse(toml, Path::new("test.toml"), &move |f| {
-        match objs.iter().find(|(n, _)| n == f) {
-            Some((_, text)) => TriMesh::parse_obj(text, Path::new(f)),
-            None => Err(umbra::Error::scene(Path::new(f), "no such inline OBJ")),
-        }
+    let objs: Vec<(String, String)> = objs
+        .iter()
+        .map(|(a, b)| (a.to_string(), b.to_string()))
+        .collect();
+    toml_format::parse(toml, Path::new("test.toml"), &move |f| match objs
+        .iter()
+        .find(|(n, _)| n == f)
+    {
+        Some((_, text)) => TriMesh::parse_obj(text, Path::new(f)),
+        None => Err(umbra::Error::scene(Path::new(f), "no such inline OBJ")),
     })
 }
 
@@ -33,14 +37,24 @@ pub fn square_obj(c: [f32; 3], side: f32) -> String {
     let h = side / 2.0;
     format!(
         "v {} {} {z}\nv {} {} {z}\nv {} {} {z}\nv {} {} {z}\nf 1 4 3 2\n",
-        c[0] - h, c[1] - h, c[0] + h, c[1] - h, c[0] + h, c[1] + h, c[0] - h, c[1] + h,
+        c[0] - h,
+        c[1] - h,
+        c[0] + h,
+        c[1] - h,
+        c[0] + h,
+        c[1] + h,
+        c[0] - h,
+        c[1] + h,
         z = c[2]
     )
 }
 
 /// Per-measurement time-integrated values.
 pub fn totals(t: &Transient) -> Vec<f64> {
-    t.data.chunks(t.bins()).map(|c| c.iter().map(|&v| v as f64).sum()).collect()
+    t.data
+        .chunks(t.bins())
+        .map(|c| c.iter().map(|&v| v as f64).sum())
+        .collect()
 }
 
 /// Mean transient over `seeds` renders and the standard error of each element.
@@ -51,7 +65,9 @@ pub struct Estimate {
 }
 
 pub fn estimate(scene: &Scene, model: Model, spp: u32, seeds: u64) -> Estimate {
-    let runs: Vec<Transient> = (0..seeds).map(|s| render(scene, model, spp, 1000 + s)).collect();
+    let runs: Vec<Transient> = (0..seeds)
+        .map(|s| render(scene, model, spp, 1000 + s))
+        .collect();
     let n = runs[0].data.len();
     let k = seeds as f64;
     let mut mean = vec![0.0; n];
@@ -67,7 +83,11 @@ pub fn estimate(scene: &Scene, model: Model, spp: u32, seeds: u64) -> Estimate {
         .zip(&sq)
         .map(|(m, s)| ((s - m * m).max(0.0) * k / (k - 1.0) / k).sqrt())
         .collect();
-    Estimate { mean, stderr, bins: runs[0].bins() }
+    Estimate {
+        mean,
+        stderr,
+        bins: runs[0].bins(),
+    }
 }
 
 impl Estimate {
@@ -80,7 +100,13 @@ impl Estimate {
 /// Total energy over seeds: (mean, standard error of the mean).
 pub fn total_energy(scene: &Scene, model: Model, spp: u32, seeds: u64) -> (f64, f64) {
     let t: Vec<f64> = (0..seeds)
-        .map(|s| render(scene, model, spp, 5000 + s).data.iter().map(|&v| v as f64).sum())
+        .map(|s| {
+            render(scene, model, spp, 5000 + s)
+                .data
+                .iter()
+                .map(|&v| v as f64)
+                .sum()
+        })
         .collect();
     let k = seeds as f64;
     let m = t.iter().sum::<f64>() / k;

@@ -66,7 +66,7 @@ impl Lines {
 
 /// Parses `text` into its root element and applies `$name` substitution from the
 /// root's `<default>` children (which stay in the tree: the scene builder skips them).
-pub(crate) fn parse(text: &str, origin: &Path) -> Result<Node> {
+pub(crate) fn parse(text: &str, origin: &Path, defines: &[(String, String)]) -> Result<Node> {
     let lines = Lines::new(text);
     let err = |pos: usize, msg: String| Error::line(origin, lines.line(pos), msg);
     let mut reader = Reader::from_str(text);
@@ -125,7 +125,7 @@ pub(crate) fn parse(text: &str, origin: &Path) -> Result<Node> {
         ));
     }
     let mut root = root.ok_or_else(|| Error::scene(origin, "no XML element in the file"))?;
-    substitute_defaults(&mut root, origin)?;
+    substitute_defaults(&mut root, origin, defines)?;
     Ok(root)
 }
 
@@ -172,8 +172,9 @@ fn node(e: &BytesStart, start: usize, lines: &Lines, origin: &Path) -> Result<No
 }
 
 /// Mitsuba's `<default name="x" value="v"/>` (top level only) defines `$x` for every
-/// attribute value in the file. An undefined `$name` is an error.
-fn substitute_defaults(root: &mut Node, origin: &Path) -> Result<()> {
+/// attribute value in the file. An undefined `$name` is an error. `defines` (the
+/// command line's `-D name=value`, as Mitsuba's) override or add to the defaults.
+fn substitute_defaults(root: &mut Node, origin: &Path, defines: &[(String, String)]) -> Result<()> {
     let mut defs: HashMap<String, String> = HashMap::new();
     for d in root.children.iter().filter(|c| c.tag == "default") {
         let (Some(name), Some(value)) = (d.attr("name"), d.attr("value")) else {
@@ -204,6 +205,9 @@ fn substitute_defaults(root: &mut Node, origin: &Path) -> Result<()> {
                 format!("<default name=\"{name}\"> is defined twice"),
             ));
         }
+    }
+    for (name, value) in defines {
+        defs.insert(name.clone(), value.clone());
     }
     substitute(root, &defs, origin, true)
 }

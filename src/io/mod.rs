@@ -10,6 +10,9 @@ use std::path::Path;
 
 /// Writes a transient; the format follows the extension (`.npy` default, `.exr`).
 pub fn write_transient(path: &Path, t: &Transient) -> Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    }
     match path
         .extension()
         .and_then(|e| e.to_str())

@@ -133,3 +133,50 @@ fn patch_exhaustive_matches_formula() {
     assert_eq!(s.num_measurements(), 256);
     check(&s, Model::Mc3, 512);
 }
+
+#[test]
+fn per_vertex_albedo_from_obj_colours() {
+    // The patch with vertex colours: the three-bounce signal scales with the mean albedo
+    // over its two triangles (faces 1 4 3 and 1 3 2 after triangulation of f 1 4 3 2).
+    let rho = [0.2f64, 0.4, 0.6, 0.8];
+    let plain = square_obj(PATCH_C, SIDE);
+    let mut coloured = String::new();
+    for (i, line) in plain.lines().enumerate() {
+        if line.starts_with("v ") {
+            coloured += &format!("{line} {r} {r} {r}\n", r = rho[i]);
+        } else {
+            coloured += &format!("{line}\n");
+        }
+    }
+    let toml = |file: &str| {
+        format!(
+            r#"
+capture_type = "confocal"
+[wall]
+size = [2.0, 2.0]
+albedo = 0.8
+[laser]
+origin = [0.4, -0.3, 1.2]
+power = 1.0
+[scan]
+resolution = [3, 3]
+[film]
+temporal_bins = 400
+bin_width_opl = 0.005
+start_opl = 1.5
+[[objects]]
+file = "{file}"
+albedo = 1.0
+"#
+        )
+    };
+    let a = scene(&toml("plain.obj"), &[("plain.obj", &plain)]);
+    let b = scene(&toml("col.obj"), &[("col.obj", &coloured)]);
+    let mean = ((rho[0] + rho[3] + rho[2]) / 3.0 + (rho[0] + rho[2] + rho[1]) / 3.0) / 2.0;
+    let ta = totals(&render(&a, Model::Mc3, 4096, 3));
+    let tb = totals(&render(&b, Model::Mc3, 4096, 3));
+    for (x, y) in ta.iter().zip(&tb) {
+        let ratio = y / x;
+        assert!((ratio - mean).abs() < 0.01 * mean, "ratio {ratio}, mean albedo {mean}");
+    }
+}

@@ -36,11 +36,25 @@ impl TriMesh {
             tobj::load_obj_buf(&mut reader, &opts, |_| Err(tobj::LoadError::OpenFileFailed))
                 .map_err(|e| Error::scene(origin, format!("malformed OBJ: {e}")))?;
         let mut mesh = TriMesh::default();
+        // Vertex colours (`v x y z r g b`), if every vertex has them, become per-vertex
+        // albedo: the mean of r, g, b (Umbra is monochrome).
+        let all_coloured = models
+            .iter()
+            .all(|m| m.mesh.vertex_color.len() == m.mesh.positions.len());
+        let mut colours = Vec::new();
         for m in &models {
             let base = mesh.positions.len() as u32;
             let p = &m.mesh.positions;
             mesh.positions
                 .extend(p.chunks_exact(3).map(|c| Vec3::new(c[0], c[1], c[2])));
+            if all_coloured {
+                colours.extend(
+                    m.mesh
+                        .vertex_color
+                        .chunks_exact(3)
+                        .map(|c| (c[0] + c[1] + c[2]) / 3.0),
+                );
+            }
             let n = (p.len() / 3) as u32;
             for t in m.mesh.indices.chunks_exact(3) {
                 if t.iter().any(|&i| i >= n) {
@@ -54,6 +68,15 @@ impl TriMesh {
         }
         if mesh.triangles.is_empty() {
             return Err(Error::scene(origin, "OBJ has no faces"));
+        }
+        if all_coloured && !colours.is_empty() {
+            if let Some(bad) = colours.iter().position(|a| !(0.0..=1.0).contains(a)) {
+                return Err(Error::scene(
+                    origin,
+                    format!("vertex colour of vertex {} is outside [0, 1]: it is used as albedo", bad + 1),
+                ));
+            }
+            mesh.vertex_albedo = Some(colours);
         }
         Ok(mesh)
     }
@@ -156,6 +179,18 @@ mod tests {
         assert_eq!(m.triangles.len(), 3);
         assert_eq!(m.drop_degenerate(), 1);
         assert!((m.area(0) + m.area(1) - 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn vertex_colours_are_albedo() {
+        let obj = "v 0 0 0 0.2 0.2 0.2\nv 1 0 0 0.4 0.5 0.6\nv 0 1 0 1 1 1\nf 1 2 3\n";
+        let m = TriMesh::parse_obj(obj, Path::new("c.obj")).unwrap();
+        let a = m.vertex_albedo.unwrap();
+        for (got, want) in a.iter().zip([0.2, 0.5, 1.0]) {
+            assert!((got - want).abs() < 1e-6, "{a:?}");
+        }
+        let plain = TriMesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", Path::new("p.obj")).unwrap();
+        assert_eq!(plain.vertex_albedo, None);
     }
 
     #[test]

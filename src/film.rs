@@ -7,7 +7,7 @@
 //! - `box`: `k = δ`, the path lands in the one bin holding `τ` (a histogram, as
 //!   mitransient's `transient_hdr_film`);
 //! - `gaussian(σ)`: `∫ k = Φ((t_{b+1} - τ)/σ) - Φ((t_b - τ)/σ)`, evaluated over the bins
-//!   within `GAUSS_CUTOFF` σ of `τ` (the mass beyond is below 1e-9).
+//!   within `GAUSS_CUTOFF` = 6.5 σ of `τ` (the mass beyond is 8e-11).
 //!
 //! Its derivative with respect to `τ` is `w * (k(t_b - τ) - k(t_{b+1} - τ))`, zero almost
 //! everywhere for `box`.
@@ -15,7 +15,7 @@
 use crate::scene::{FilmSpec, KernelSpec};
 
 /// Half-width of the evaluated Gaussian support, in σ.
-pub const GAUSS_CUTOFF: f64 = 6.0;
+pub const GAUSS_CUTOFF: f64 = 6.5;
 
 /// Bin geometry and kernel, in f64 for the splat arithmetic.
 #[derive(Clone, Copy, Debug)]

@@ -12,8 +12,15 @@ fn tmp(name: &str) -> PathBuf {
 }
 
 fn umbra(args: &[&str]) -> std::process::Output {
-    let out = Command::new(env!("CARGO_BIN_EXE_umbra")).args(args).output().unwrap();
-    assert!(out.status.success(), "umbra {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+    let out = Command::new(env!("CARGO_BIN_EXE_umbra"))
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "umbra {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     out
 }
 
@@ -22,7 +29,10 @@ fn default_scene_npy_exr_and_previews() {
     let npy = tmp("default.npy");
     let out = umbra(&["render", "-o", npy.to_str().unwrap(), "--spp", "16", "-q"]);
     let summary = String::from_utf8_lossy(&out.stdout);
-    assert!(summary.contains("samples/s") && summary.contains("confocal"), "{summary}");
+    assert!(
+        summary.contains("samples/s") && summary.contains("confocal"),
+        "{summary}"
+    );
     let t = io::read_npy(&npy).unwrap();
     assert_eq!(t.shape, vec![32, 32, 512]);
     assert!(t.data.iter().all(|v| v.is_finite() && *v >= 0.0));
@@ -35,7 +45,15 @@ fn default_scene_npy_exr_and_previews() {
 
     // The EXR holds the same numbers: width T, one row per scan point.
     let exr_path = tmp("default.exr");
-    umbra(&["render", "-o", exr_path.to_str().unwrap(), "--spp", "16", "-q", "--no-preview"]);
+    umbra(&[
+        "render",
+        "-o",
+        exr_path.to_str().unwrap(),
+        "--spp",
+        "16",
+        "-q",
+        "--no-preview",
+    ]);
     let img = exr::prelude::read_first_flat_layer_from_file(&exr_path).unwrap();
     assert_eq!(img.layer_data.size.width(), 512);
     assert_eq!(img.layer_data.size.height(), 32 * 32);
@@ -48,7 +66,30 @@ fn default_scene_npy_exr_and_previews() {
 fn cli_output_is_independent_of_threads() {
     let a = tmp("t1.npy");
     let b = tmp("t2.npy");
-    umbra(&["render", "-o", a.to_str().unwrap(), "--spp", "40", "--threads", "1", "-q", "--no-preview"]);
-    umbra(&["render", "-o", b.to_str().unwrap(), "--spp", "40", "--threads", "2", "-q", "--no-preview"]);
-    assert_eq!(io::read_npy(&a).unwrap().data, io::read_npy(&b).unwrap().data);
+    umbra(&[
+        "render",
+        "-o",
+        a.to_str().unwrap(),
+        "--spp",
+        "40",
+        "--threads",
+        "1",
+        "-q",
+        "--no-preview",
+    ]);
+    umbra(&[
+        "render",
+        "-o",
+        b.to_str().unwrap(),
+        "--spp",
+        "40",
+        "--threads",
+        "2",
+        "-q",
+        "--no-preview",
+    ]);
+    assert_eq!(
+        io::read_npy(&a).unwrap().data,
+        io::read_npy(&b).unwrap().data
+    );
 }

@@ -177,6 +177,9 @@ albedo = 1.0
     let tb = totals(&render(&b, Model::Mc3, 4096, 3));
     for (x, y) in ta.iter().zip(&tb) {
         let ratio = y / x;
-        assert!((ratio - mean).abs() < 0.01 * mean, "ratio {ratio}, mean albedo {mean}");
+        assert!(
+            (ratio - mean).abs() < 0.01 * mean,
+            "ratio {ratio}, mean albedo {mean}"
+        );
     }
 }

@@ -73,7 +73,10 @@ impl TriMesh {
             if let Some(bad) = colours.iter().position(|a| !(0.0..=1.0).contains(a)) {
                 return Err(Error::scene(
                     origin,
-                    format!("vertex colour of vertex {} is outside [0, 1]: it is used as albedo", bad + 1),
+                    format!(
+                        "vertex colour of vertex {} is outside [0, 1]: it is used as albedo",
+                        bad + 1
+                    ),
                 ));
             }
             mesh.vertex_albedo = Some(colours);
@@ -189,7 +192,8 @@ mod tests {
         for (got, want) in a.iter().zip([0.2, 0.5, 1.0]) {
             assert!((got - want).abs() < 1e-6, "{a:?}");
         }
-        let plain = TriMesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", Path::new("p.obj")).unwrap();
+        let plain =
+            TriMesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", Path::new("p.obj")).unwrap();
         assert_eq!(plain.vertex_albedo, None);
     }
 

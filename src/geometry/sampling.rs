@@ -9,6 +9,9 @@
 
 use glam::Vec3;
 
+/// The largest f32 below 1.
+pub const ONE_MINUS_EPS: f32 = 1.0 - f32::EPSILON / 2.0;
+
 /// Discrete distribution over triangles proportional to area.
 #[derive(Clone, Debug, Default)]
 pub struct AreaDistribution {
@@ -54,15 +57,25 @@ impl AreaDistribution {
         (1.0 / self.total) as f32
     }
 
-    /// Picks a triangle with `u_tri` and a uniform point on it with `u_bary`.
-    pub fn sample(&self, u_tri: f32, u_bary: [f32; 2]) -> TriangleSample {
+    /// A uniform point on the surfaces from one 2-D sample: `u[0]` picks the triangle and
+    /// is then rescaled to [0, 1) within the triangle's share of the CDF, so the pair
+    /// `(u[0]', u[1])` that places the point on the triangle keeps the stratification of
+    /// `u` over the whole surface.
+    pub fn sample(&self, u: [f32; 2]) -> TriangleSample {
         let i = self
             .cdf
-            .partition_point(|&c| c <= u_tri)
+            .partition_point(|&c| c <= u[0])
             .min(self.cdf.len() - 1);
+        let lo = if i == 0 { 0.0 } else { self.cdf[i - 1] };
+        let width = self.cdf[i] - lo;
+        let u0 = if width > 0.0 {
+            ((u[0] - lo) / width).clamp(0.0, ONE_MINUS_EPS)
+        } else {
+            0.5
+        };
         TriangleSample {
             tri: i as u32,
-            bary: uniform_triangle(u_bary),
+            bary: uniform_triangle([u0, u[1]]),
             pdf_area: self.pdf_area(),
         }
     }
@@ -225,8 +238,7 @@ mod tests {
         let mut obs = vec![0.0; areas.len() * bands * 2];
         for i in 0..samples {
             let mut s = Sampler::independent(9, 1, i);
-            let u = s.next_1d();
-            let ts = dist.sample(u, s.next_2d());
+            let ts = dist.sample(s.next_2d());
             let [b1, b2] = ts.bary;
             assert!(b1 >= 0.0 && b2 >= 0.0 && b1 + b2 <= 1.0 + 1e-6);
             let band = ((b1 * bands as f32) as usize).min(bands - 1);

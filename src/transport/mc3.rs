@@ -22,8 +22,7 @@ use std::f32::consts::FRAC_1_PI;
 #[inline]
 pub fn sample<S: Sink>(ctx: &MeasurementCtx, sampler: &mut Sampler, sink: &mut S) {
     let geom = ctx.geom;
-    let u_tri = sampler.next_1d();
-    let ts = geom.hidden_area.sample(u_tri, sampler.next_2d());
+    let ts = geom.hidden_area.sample(sampler.next_2d());
     let u_spot = sampler.next_2d();
     let tri = &geom.hidden[ts.tri as usize];
     let x = tri.point(ts.bary);

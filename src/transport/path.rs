@@ -37,7 +37,7 @@
 //! participating media, a non-planar wall.
 
 use super::{sample_spot, scatter_cosines, Contribution, MeasurementCtx, PathVertex, Sink};
-use crate::geometry::sampling::cosine_hemisphere;
+use crate::geometry::sampling::{cosine_hemisphere, ONE_MINUS_EPS};
 use crate::geometry::SurfaceKind;
 use crate::rng::Sampler;
 use crate::scene::Techniques;
@@ -139,20 +139,22 @@ pub fn sample<S: Sink>(
         if j + 1 > max_bounces {
             break;
         }
-        let [u_pick, u_rr] = sampler.next_2d();
-        let u_dir = sampler.next_2d();
+        // One stratified pair picks the technique and, rescaled, drives it.
+        let [u_pick, u_2] = sampler.next_2d();
         let u_spot = sampler.next_2d();
+        let u_rr = sampler.next_1d();
         let (c_bsdf, c_hg) = technique_probabilities(tech, x.on_wall);
 
         // --- continuation: sample y_j by one of the two techniques -----------------
         let (dir, dist, y_p, y_n, kind, flat, bary) = if u_pick < c_bsdf {
-            let ds = cosine_hemisphere(x.n_side, u_dir);
+            let ds = cosine_hemisphere(x.n_side, [u_pick / c_bsdf, u_2]);
             let Some(hit) = geom.intersect(x.p, ds.dir) else {
                 break;
             };
             (ds.dir, hit.t, hit.p, hit.n, hit.kind, hit.flat, hit.bary)
         } else {
-            let ts = hg_dist.sample((u_pick - c_bsdf) / c_hg, u_dir);
+            let u_hg = ((u_pick - c_bsdf) / c_hg).min(ONE_MINUS_EPS);
+            let ts = hg_dist.sample([u_hg, u_2]);
             let (y, n, kind, flat) = if ts.tri < n_hidden {
                 let tri = &geom.hidden[ts.tri as usize];
                 let (object, t) = geom.flat_to_local[ts.tri as usize];

@@ -5,13 +5,16 @@ plate at 0.35 m), each rendered as a `single` and a `confocal` capture (16x16 sc
 in these variants:
 
   3b-hgs   three-bounce only, hidden-geometry sampling   (Umbra --model mc3)
-  3b-bsdf  three-bounce only, BSDF sampling              (Umbra --model mc3)
+  3b-bsdf  three-bounce only, BSDF sampling              (Umbra --model path, BSDF only)
+  3b-mis   three-bounce only, mitransient HGS            (Umbra --model path, its MIS of
+           BSDF and hidden-geometry sampling)
   mb-hgs   up to 6 bounces, HGS without the relay wall   (Umbra --model path): path space
            WITHOUT relay-wall vertices between x_s and x_l (mitransient's HGS never samples
            the wall)
   mb-hgs-wall  up to 6 bounces, HGS including the wall  (Umbra --model path): all paths
   mb-bsdf  up to 6 bounces, BSDF sampling                (Umbra --model path): all paths,
            including relay-wall interreflections
+  mb-mis   up to 6 bounces, mitransient BSDF sampling    (Umbra --model path, MIS): all paths
 
 For T and arc the relay-wall inter-reflections fall outside the time window (T: mb == 3b in
 mitransient); `near` puts them inside: there mb-bsdf = mb-hgs-wall = mb-hgs + ~3 %.
@@ -54,18 +57,23 @@ L2_FACTOR = 1.5           # measured rel. L2 must be <= L2_FACTOR x expected
 TOTAL_TOL = 0.01          # 1 % on the total energy, plus 3 sigma of MC error
 COARSE = 8                # time bins merged for the coarse L2
 
+MIS = ["--hidden-geometry-sampling", "true", "--bsdf-sampling", "true"]
 VARIANTS = {
-    #           XML <default> overrides                                              model    mt spp  umbra spp
-    "3b-hgs": (dict(max_depth=3, filter_bounces=2, hgs="true", hgs_wall="false"), "mc3", 2048, 2048),
-    "3b-bsdf": (dict(max_depth=3, filter_bounces=2, hgs="false", hgs_wall="false"), "mc3", 16384, 2048),
-    "mb-hgs": (dict(max_depth=6, filter_bounces=-1, hgs="true", hgs_wall="false"), "path", 2048, 2048),
-    "mb-hgs-wall": (dict(max_depth=6, filter_bounces=-1, hgs="true", hgs_wall="true"), "path", 4096, 2048),
-    "mb-bsdf": (dict(max_depth=6, filter_bounces=-1, hgs="false", hgs_wall="false"), "path", 16384, 4096),
+    #           XML <default> overrides                                              model   mt spp umbra spp  umbra extra args
+    "3b-hgs": (dict(max_depth=3, filter_bounces=2, hgs="true", hgs_wall="false"), "mc3", 2048, 2048, []),
+    "3b-bsdf": (dict(max_depth=3, filter_bounces=2, hgs="false", hgs_wall="false"), "path", 16384, 16384, []),
+    "3b-mis": (dict(max_depth=3, filter_bounces=2, hgs="true", hgs_wall="false"), "path", 2048, 2048, MIS),
+    "mb-hgs": (dict(max_depth=6, filter_bounces=-1, hgs="true", hgs_wall="false"), "path", 2048, 2048, []),
+    "mb-hgs-wall": (dict(max_depth=6, filter_bounces=-1, hgs="true", hgs_wall="true"), "path", 4096, 2048, []),
+    "mb-bsdf": (dict(max_depth=6, filter_bounces=-1, hgs="false", hgs_wall="false"), "path", 16384, 4096, []),
+    # Umbra's default estimator (MIS of BSDF and hidden-geometry sampling) against
+    # mitransient's BSDF sampling, which reaches every path.
+    "mb-mis": (dict(max_depth=6, filter_bounces=-1, hgs="false", hgs_wall="false"), "path", 16384, 2048, MIS),
 }
 SCENE_VARIANTS = {
-    "T": ["3b-hgs", "3b-bsdf", "mb-hgs", "mb-bsdf"],
-    "arc": ["3b-hgs", "3b-bsdf", "mb-hgs", "mb-bsdf"],
-    "near": ["3b-hgs", "mb-hgs", "mb-hgs-wall", "mb-bsdf"],
+    "T": ["3b-hgs", "3b-bsdf", "3b-mis", "mb-hgs", "mb-bsdf", "mb-mis"],
+    "arc": ["3b-hgs", "3b-bsdf", "3b-mis", "mb-hgs", "mb-bsdf", "mb-mis"],
+    "near": ["3b-hgs", "mb-hgs", "mb-hgs-wall", "mb-bsdf", "mb-mis"],
 }
 CAPTURES = ["single", "confocal"]
 CASES = [(s, c, v) for s, vs in SCENE_VARIANTS.items() for c in CAPTURES for v in vs]
@@ -118,10 +126,11 @@ def mt_render(mt, xml: Path, spp: int, seed: int, cache_dir: Path) -> np.ndarray
     return H
 
 
-def umbra_render(umbra_bin: str, xml: Path, spp: int, seed: int, model: str, out_dir: Path) -> np.ndarray:
+def umbra_render(umbra_bin: str, xml: Path, spp: int, seed: int, model: str, out_dir: Path,
+                 extra: list[str] | None = None) -> np.ndarray:
     out = out_dir / f"umbra-{xml.stem}-spp{spp}-seed{seed}.npy"
     cmd = [umbra_bin, "render", str(xml), "-o", str(out), "--spp", str(spp), "--seed", str(seed),
-           "--model", model]
+           "--model", model, "--no-preview", "-q"] + list(extra or [])
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
     if r.returncode != 0:
         pytest.fail(f"umbra failed (exit {r.returncode}): {' '.join(cmd)}\n"
@@ -201,7 +210,7 @@ def test_vs_mitransient(scene, capture, variant, mt, umbra_bin, cache_dir, tmp_p
     if not _selected(case_id):
         pytest.skip("deselected by UMBRA_XVAL_CASES")
     require_umbra(umbra_bin)
-    params, model, spp_m, spp_u = VARIANTS[variant]
+    params, model, spp_m, spp_u, extra = VARIANTS[variant]
     spp_u = max(1, int(round(spp_u * float(os.environ.get("UMBRA_XVAL_SPP_SCALE", "1")))))
     xml = write_variant(scene, capture, variant, cache_dir / "variants")
 
@@ -212,7 +221,7 @@ def test_vs_mitransient(scene, capture, variant, mt, umbra_bin, cache_dir, tmp_p
         spp_u = spp_m
         U = np.stack([mt_render(mt, xml, spp_m, 1000 + s, cache_dir) for s in range(K)])
     else:
-        U = np.stack([umbra_render(umbra_bin, xml, spp_u, s, model, tmp_path) for s in range(K)])
+        U = np.stack([umbra_render(umbra_bin, xml, spp_u, s, model, tmp_path, extra) for s in range(K)])
     t2 = time.time()
 
     assert U.shape == M.shape, f"Umbra output shape {U.shape[1:]} != mitransient {M.shape[1:]} (sy, sx, T)"

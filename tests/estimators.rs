@@ -93,7 +93,7 @@ fn assert_same_power(name: &str, a: (f64, f64), b: (f64, f64), max_sigma: f64) {
 
 #[test]
 fn path_filtered_to_three_bounces_equals_mc3() {
-    for capture in ["single", "confocal"] {
+    for capture in ["single", "confocal", "exhaustive"] {
         let mc3 = total_energy(&t_scene(capture, ""), Model::Mc3, 4096, 8);
         let s = t_scene(capture, "filter_bounces = 3");
         let path = total_energy(&s, Model::Path, 4096, 8);

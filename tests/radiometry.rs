@@ -183,3 +183,55 @@ albedo = 1.0
         );
     }
 }
+
+#[test]
+fn first_and_last_legs_shift_the_pulse() {
+    // With account_first_and_last_bounces the OPL gains |laser - x_l| + |x_s - detector|:
+    // the same energy, the pulse moved by exactly that much (Gaussian kernel: compare
+    // each point's mean OPL).
+    let make = |account: bool| {
+        let toml = format!(
+            r#"
+capture_type = "single"
+account_first_and_last_bounces = {account}
+[wall]
+size = [2.0, 2.0]
+[laser]
+origin = [0.4, -0.3, 1.2]
+target = [0.3, -0.2, 0.0]
+[detector]
+origin = [-0.5, 0.2, 0.8]
+[scan]
+resolution = [2, 2]
+[film]
+temporal_bins = 1200
+bin_width_opl = 0.005
+start_opl = 1.0
+kernel = "gaussian"
+sigma_opl = 0.01
+[[objects]]
+file = "patch.obj"
+"#
+        );
+        scene(&toml, &[("patch.obj", &square_obj(PATCH_C, SIDE))])
+    };
+    let (a, b) = (make(false), make(true));
+    let (ta, tb) = (render(&a, Model::Path, 1024, 1), render(&b, Model::Path, 1024, 1));
+    let mean_opl = |c: &[f32]| {
+        let w: f64 = c.iter().map(|&v| v as f64).sum();
+        c.iter()
+            .enumerate()
+            .map(|(i, &v)| v as f64 * (1.0 + (i as f64 + 0.5) * 0.005))
+            .sum::<f64>()
+            / w
+    };
+    for m in 0..a.num_measurements() {
+        let (xl, xs) = b.measurement_points(m);
+        let legs = ((b.laser.origin - xl).length() + (xs - b.detector.origin).length()) as f64;
+        let (ca, cb) = (&ta.data[m * 1200..][..1200], &tb.data[m * 1200..][..1200]);
+        let shift = mean_opl(cb) - mean_opl(ca);
+        assert!((shift - legs).abs() < 1e-3, "point {m}: shift {shift}, legs {legs}");
+        let (ea, eb): (f32, f32) = (ca.iter().sum(), cb.iter().sum());
+        assert!(((ea - eb) / ea).abs() < 1e-3, "energy {ea} vs {eb}");
+    }
+}

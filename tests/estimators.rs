@@ -171,6 +171,19 @@ fn ablation_laser_sampling_with_a_finite_spot() {
         8,
     );
     assert_same_power("spot: without laser sampling vs with", no_nee, nee, 0.012);
+    // Hidden-geometry sampling of the wall can land on the spot too: its MIS weight
+    // against NEE must count that density.
+    let hg_wall = total_energy(
+        &spot(&format!("{r}\nhidden_geometry_includes_wall = true")),
+        Model::Path,
+        16384,
+        8,
+    );
+    assert_same(
+        "spot: HG incl. wall + BSDF + NEE vs HG + BSDF + NEE",
+        hg_wall,
+        nee,
+    );
     // mc3 over the lit disk = path filtered to three bounces with a finite spot.
     let mc3 = total_energy(&spot(""), Model::Mc3, 4096, 8);
     let p3 = total_energy(&spot("filter_bounces = 3"), Model::Path, 16384, 8);

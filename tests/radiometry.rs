@@ -216,7 +216,10 @@ file = "patch.obj"
         scene(&toml, &[("patch.obj", &square_obj(PATCH_C, SIDE))])
     };
     let (a, b) = (make(false), make(true));
-    let (ta, tb) = (render(&a, Model::Path, 1024, 1), render(&b, Model::Path, 1024, 1));
+    let (ta, tb) = (
+        render(&a, Model::Path, 1024, 1),
+        render(&b, Model::Path, 1024, 1),
+    );
     let mean_opl = |c: &[f32]| {
         let w: f64 = c.iter().map(|&v| v as f64).sum();
         c.iter()
@@ -230,7 +233,10 @@ file = "patch.obj"
         let legs = ((b.laser.origin - xl).length() + (xs - b.detector.origin).length()) as f64;
         let (ca, cb) = (&ta.data[m * 1200..][..1200], &tb.data[m * 1200..][..1200]);
         let shift = mean_opl(cb) - mean_opl(ca);
-        assert!((shift - legs).abs() < 1e-3, "point {m}: shift {shift}, legs {legs}");
+        assert!(
+            (shift - legs).abs() < 1e-3,
+            "point {m}: shift {shift}, legs {legs}"
+        );
         let (ea, eb): (f32, f32) = (ca.iter().sum(), cb.iter().sum());
         assert!(((ea - eb) / ea).abs() < 1e-3, "energy {ea} vs {eb}");
     }

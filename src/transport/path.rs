@@ -212,9 +212,10 @@ pub fn sample<S: Sink>(
                     && (y_p - ctx.x_l).length_squared() <= spot_r * spot_r
                     && keep(j + 1, hidden_seen)
                 {
+                    // Balance heuristic between the continuation (density q, whichever
+                    // technique drew y) and NEE (density 1/(π r²)) for this spot point.
                     let w_mis = if tech.laser_sampling {
-                        let p_b = c_bsdf * p_bsdf_area;
-                        p_b / (p_b + 1.0 / spot_area)
+                        q / (q + 1.0 / spot_area)
                     } else {
                         1.0
                     };
@@ -263,14 +264,16 @@ pub fn sample<S: Sink>(
                         let g = cos_y_l * cos_wall_l / (r_l * r_l);
                         let weight = if spot_r > 0.0 {
                             let p_nee = 1.0 / spot_area;
-                            // BSDF sampling at y (a hidden vertex) could have landed on x_l too.
-                            let c_bsdf_y = technique_probabilities(tech, false).0;
-                            let w_mis = if c_bsdf_y > 0.0 {
-                                let p_b = c_bsdf_y * cos_y_l * FRAC_1_PI * cos_wall_l / (r_l * r_l);
-                                p_nee / (p_nee + p_b)
-                            } else {
-                                1.0
-                            };
+                            // The continuation from y (a hidden vertex) could have landed
+                            // on x_l too: by BSDF sampling, or by area sampling of the wall.
+                            let (c_b, c_h) = technique_probabilities(tech, false);
+                            let q_l = c_b * cos_y_l * FRAC_1_PI * cos_wall_l / (r_l * r_l)
+                                + if tech.hidden_geometry_includes_wall {
+                                    c_h * pdf_hg
+                                } else {
+                                    0.0
+                                };
+                            let w_mis = p_nee / (p_nee + q_l);
                             beta * f_y * g * spot_radiance / p_nee * w_mis
                         } else {
                             beta * f_y * g * ctx.power * ctx.f_wall

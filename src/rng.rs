@@ -16,6 +16,8 @@ pub const SOBOL_PAIRS: u32 = 16;
 pub struct Sampler {
     key: u64,
     index: u32,
+    /// `index` bit-reversed, computed once (the scramble works on reversed numbers).
+    index_reversed: u32,
     dim: u32,
 }
 
@@ -23,7 +25,12 @@ impl Sampler {
     /// The stream of sample `index` of measurement `stream` under `seed`.
     pub fn new(seed: u64, stream: u64, index: u32) -> Self {
         let key = mix64(seed ^ mix64(stream.wrapping_add(0x9E37_79B9_7F4A_7C15)));
-        Sampler { key, index, dim: 0 }
+        Sampler {
+            key,
+            index,
+            index_reversed: index.reverse_bits(),
+            dim: 0,
+        }
     }
 
     /// A stream of independent (unstratified) numbers: for statistical tests of the
@@ -48,7 +55,7 @@ impl Sampler {
             // Owen-scrambled index (Burley's shuffle), then each coordinate scrambled.
             // Scrambling works on bit-reversed numbers; Sobol' dimension 0 is the
             // bit-reversed index, so its coordinate needs no table.
-            let i = laine_karras(self.index.reverse_bits(), seed_index).reverse_bits();
+            let i = laine_karras(self.index_reversed, seed_index).reverse_bits();
             let x = laine_karras(i, seed_x);
             let y = laine_karras(sobol_dim1_reversed(i), seed_y);
             [to_unit(x.reverse_bits()), to_unit(y.reverse_bits())]

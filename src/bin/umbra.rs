@@ -179,14 +179,17 @@ fn render(args: RenderArgs) -> umbra::Result<()> {
     };
     let done = std::sync::atomic::AtomicBool::new(false);
     let result = std::thread::scope(|s| {
+        // The bar is refreshed every 100 ms; the render's end wakes the watcher at once,
+        // so it never delays the command.
         let watcher = s.spawn(|| {
-            while !done.load(Ordering::Relaxed) {
+            while !done.load(Ordering::Acquire) {
                 bar.set_position(progress.samples_done.load(Ordering::Relaxed));
-                std::thread::sleep(Duration::from_millis(100));
+                std::thread::park_timeout(Duration::from_millis(100));
             }
         });
         let r = pool.install(|| transport::render(&scene, &geom, &opts, Some(&progress)));
-        done.store(true, Ordering::Relaxed);
+        done.store(true, Ordering::Release);
+        watcher.thread().unpark();
         let _ = watcher.join();
         r
     });

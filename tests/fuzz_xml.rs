@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use umbra::scene::mitsuba_xml;
 
 fn ytal_dir() -> PathBuf {
-    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/ytal"))
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/ytal"))
 }
 
 fn ytal_xml() -> &'static [u8] {

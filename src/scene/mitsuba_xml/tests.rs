@@ -2,7 +2,7 @@ use super::*;
 use std::path::PathBuf;
 
 fn ytal_dir() -> PathBuf {
-    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/ytal"))
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/ytal"))
 }
 
 fn ytal_text() -> String {

@@ -7,8 +7,9 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use umbra::geometry::SceneGeometry;
+use umbra::scene::Visibility;
 use umbra::scene::{Model, Scene};
-use umbra::transport::{self, Progress, RenderOptions};
+use umbra::transport::{Progress, RenderOptions, Renderer};
 
 #[derive(Parser)]
 #[command(
@@ -35,9 +36,20 @@ struct RenderArgs {
     /// written next to it.
     #[arg(short, long, default_value = "transient.npy")]
     output: PathBuf,
-    /// Light-transport model: mc3 (Monte Carlo three-bounce) or path (multi-bounce).
+    /// Light-transport model: tri3 (deterministic per-triangle three-bounce), mc3 (Monte
+    /// Carlo three-bounce), path (multi-bounce) or auto (the cheapest accurate enough).
     #[arg(long)]
     model: Option<String>,
+    /// tri3: shadow rays: none, centroid or subtriangle.
+    #[arg(long)]
+    visibility: Option<String>,
+    /// tri3: subdivision threshold: largest h²/(r·w) of a sub-triangle (edge h, height
+    /// above the wall r, bin width w), i.e. the OPL curvature across it in bins.
+    #[arg(long)]
+    subdivision: Option<f32>,
+    /// auto: the relative error the chosen model may leave (e.g. 0.01).
+    #[arg(long)]
+    max_error: Option<f32>,
     /// Samples per measurement (overrides the scene).
     #[arg(long)]
     spp: Option<u32>,
@@ -143,6 +155,29 @@ fn render(args: RenderArgs) -> umbra::Result<()> {
     if let Some(s) = args.seed {
         opts.seed = s;
     }
+    if let Some(v) = &args.visibility {
+        opts.visibility = Visibility::parse(v).ok_or_else(|| {
+            umbra::Error::Invalid(format!(
+                "--visibility: '{v}' is not one of none, centroid, subtriangle"
+            ))
+        })?;
+    }
+    if let Some(s) = args.subdivision {
+        if !(s.is_finite() && s > 0.0) {
+            return Err(umbra::Error::Invalid(format!(
+                "--subdivision: must be > 0, got {s}"
+            )));
+        }
+        opts.subdivision = s;
+    }
+    if let Some(e) = args.max_error {
+        if !(e.is_finite() && e > 0.0) {
+            return Err(umbra::Error::Invalid(format!(
+                "--max-error: must be > 0, got {e}"
+            )));
+        }
+        opts.max_error = e;
+    }
     let pool = {
         let mut b = rayon::ThreadPoolBuilder::new();
         if let Some(t) = args.threads {
@@ -164,15 +199,20 @@ fn render(args: RenderArgs) -> umbra::Result<()> {
             }
         });
     }
-    let total = transport::total_samples(&scene, &opts);
+    let renderer = pool.install(|| Renderer::new(&scene, &geom, &opts))?;
+    if let Some(choice) = &renderer.auto_choice {
+        eprintln!("auto: chose {}", choice.reason);
+    }
+    let total = renderer.total_work();
+    let unit = renderer.work_unit();
     let bar = if args.quiet {
         ProgressBar::hidden()
     } else {
         let b = ProgressBar::new(total);
         b.set_style(
-            ProgressStyle::with_template(
-                "{spinner} [{elapsed_precise}] {bar:40} {percent:>3}% {human_pos}/{human_len} samples ({per_sec}, ETA {eta})",
-            )
+            ProgressStyle::with_template(&format!(
+                "{{spinner}} [{{elapsed_precise}}] {{bar:40}} {{percent:>3}}% {{human_pos}}/{{human_len}} {unit} ({{per_sec}}, ETA {{eta}})"
+            ))
             .expect("template"),
         );
         b
@@ -183,11 +223,11 @@ fn render(args: RenderArgs) -> umbra::Result<()> {
         // so it never delays the command.
         let watcher = s.spawn(|| {
             while !done.load(Ordering::Acquire) {
-                bar.set_position(progress.samples_done.load(Ordering::Relaxed));
+                bar.set_position(progress.work_done.load(Ordering::Relaxed));
                 std::thread::park_timeout(Duration::from_millis(100));
             }
         });
-        let r = pool.install(|| transport::render(&scene, &geom, &opts, Some(&progress)));
+        let r = pool.install(|| renderer.render(Some(&progress)));
         done.store(true, Ordering::Release);
         watcher.thread().unpark();
         let _ = watcher.join();
@@ -201,16 +241,20 @@ fn render(args: RenderArgs) -> umbra::Result<()> {
     if !args.no_preview {
         previews = umbra::io::preview::write_previews(&args.output, &transient)?;
     }
-    let model = transport::resolve_model(&scene, &opts)?;
+    let detail = match renderer.model {
+        Model::Tri3 => format!(
+            "{} sub-triangles, visibility {}",
+            renderer.subtriangles(),
+            opts.visibility.name()
+        ),
+        _ => format!("{} spp, seed {}", opts.spp, opts.seed),
+    };
     println!(
-        "umbra: {} {:?} ({}, {}, {} spp, seed {}) in {:.2} s: {:.3} M samples/s -> {}{}",
+        "umbra: {} {:?} ({}, {} triangles, {detail}) in {secs:.2} s: {:.3} M {unit}/s -> {}{}",
         scene.capture.name(),
         transient.shape,
-        model.name(),
+        renderer.model.name(),
         scene.total_hidden_triangles(),
-        opts.spp,
-        opts.seed,
-        secs,
         total as f64 / secs / 1e6,
         args.output.display(),
         if previews.is_empty() {

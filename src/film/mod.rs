@@ -14,6 +14,8 @@
 
 use crate::scene::{FilmSpec, KernelSpec};
 
+mod pulse;
+
 /// Half-width of the evaluated Gaussian support, in σ.
 pub const GAUSS_CUTOFF: f64 = 6.5;
 

@@ -139,9 +139,15 @@ impl SceneGeometry {
         let c11 = c10 + w.axis_v;
         let c01 = c00 + w.axis_v;
         let wall_tris = [[c00, c10, c11], [c00, c11, c01]];
+        let centroids: Vec<Vec3> = hidden
+            .iter()
+            .map(|t| (t.v[0] + t.v[1] + t.v[2]) / 3.0)
+            .collect();
         let mut areas_with_wall = areas.clone();
+        let mut centroids_with_wall = centroids.clone();
         for [a, b, c] in wall_tris {
             areas_with_wall.push(0.5 * (b - a).cross(c - a).length());
+            centroids_with_wall.push((a + b + c) / 3.0);
         }
         for t in [tri(c00, c10, c11), tri(c00, c11, c01)] {
             tris.push(t);
@@ -178,8 +184,8 @@ impl SceneGeometry {
             prims,
             flat_to_local,
             hidden,
-            hidden_area: AreaDistribution::new(&areas),
-            hidden_and_wall_area: AreaDistribution::new(&areas_with_wall),
+            hidden_area: AreaDistribution::spatial(&areas, &centroids),
+            hidden_and_wall_area: AreaDistribution::spatial(&areas_with_wall, &centroids_with_wall),
             wall_tris,
             eps: 2e-6 * extent.max(1e-3) + 1e-6,
             wall_normal,

@@ -4,5 +4,6 @@
 pub mod accel;
 pub mod mesh;
 pub mod sampling;
+pub mod shapes;
 
 pub use accel::{HiddenTri, Hit, SceneGeometry, SurfaceKind};

@@ -13,10 +13,17 @@ use glam::Vec3;
 pub const ONE_MINUS_EPS: f32 = 1.0 - f32::EPSILON / 2.0;
 
 /// Discrete distribution over triangles proportional to area.
+///
+/// Triangles are laid out along a Morton (Z-order) curve of their centroids before the
+/// CDF is built, so consecutive values of the sample's first coordinate pick nearby
+/// triangles: stratified samples then stay stratified over the surface, not just over
+/// the list of triangles.
 #[derive(Clone, Debug, Default)]
 pub struct AreaDistribution {
-    /// Normalised running sums: `cdf[i]` = (A_0 + … + A_i) / A.
+    /// Normalised running sums in sampling order: `cdf[k]` = (A_order[0] + … + A_order[k]) / A.
     cdf: Vec<f32>,
+    /// Flat triangle index of each position along the curve.
+    order: Vec<u32>,
     total: f64,
 }
 
@@ -32,15 +39,41 @@ pub struct TriangleSample {
 }
 
 impl AreaDistribution {
+    /// A distribution in the given order of triangles.
     pub fn new(areas: &[f32]) -> Self {
+        Self::with_order(areas, (0..areas.len() as u32).collect())
+    }
+
+    /// A distribution over triangles with `areas` and `centroids`, laid out in Morton
+    /// order of the centroids.
+    pub fn spatial(areas: &[f32], centroids: &[Vec3]) -> Self {
+        let (lo, hi) = centroids.iter().fold(
+            (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+            |(lo, hi), &c| (lo.min(c), hi.max(c)),
+        );
+        let extent = (hi - lo).max(Vec3::splat(1e-12));
+        let key = |c: Vec3| {
+            let q = ((c - lo) / extent * 1023.0).clamp(Vec3::ZERO, Vec3::splat(1023.0));
+            morton3(q.x as u32) | (morton3(q.y as u32) << 1) | (morton3(q.z as u32) << 2)
+        };
+        let mut order: Vec<u32> = (0..areas.len() as u32).collect();
+        order.sort_by_key(|&i| (key(centroids[i as usize]), i));
+        Self::with_order(areas, order)
+    }
+
+    fn with_order(areas: &[f32], order: Vec<u32>) -> Self {
         let mut acc = 0.0f64;
-        let mut cdf = Vec::with_capacity(areas.len());
-        for &a in areas {
-            acc += a.max(0.0) as f64;
-            cdf.push(acc);
+        let mut sums = Vec::with_capacity(order.len());
+        for &i in &order {
+            acc += areas[i as usize].max(0.0) as f64;
+            sums.push(acc);
         }
-        let cdf = cdf.iter().map(|&c| (c / acc) as f32).collect();
-        AreaDistribution { cdf, total: acc }
+        let cdf = sums.iter().map(|&c| (c / acc) as f32).collect();
+        AreaDistribution {
+            cdf,
+            order,
+            total: acc,
+        }
     }
 
     /// Total area `A` (m²).
@@ -74,17 +107,26 @@ impl AreaDistribution {
             0.5
         };
         TriangleSample {
-            tri: i as u32,
+            tri: self.order[i],
             bary: uniform_triangle([u0, u[1]]),
             pdf_area: self.pdf_area(),
         }
     }
 
-    /// Probability of picking triangle `i`.
-    pub fn probability(&self, i: usize) -> f32 {
-        let lo = if i == 0 { 0.0 } else { self.cdf[i - 1] };
-        self.cdf[i] - lo
+    /// Probability of picking position `k` along the sampling order.
+    pub fn probability_at(&self, k: usize) -> f32 {
+        let lo = if k == 0 { 0.0 } else { self.cdf[k - 1] };
+        self.cdf[k] - lo
     }
+}
+
+/// Spreads the low 10 bits of `x` to every third bit (for 3-D Morton codes).
+fn morton3(x: u32) -> u32 {
+    let mut x = x & 0x3FF;
+    x = (x | (x << 16)) & 0x030000FF;
+    x = (x | (x << 8)) & 0x0300F00F;
+    x = (x | (x << 4)) & 0x030C30C3;
+    (x | (x << 2)) & 0x09249249
 }
 
 /// Uniform barycentrics `(b1, b2)` on a triangle (square-root parameterisation).

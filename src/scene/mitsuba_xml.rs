@@ -357,6 +357,9 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
                 // (with do_rroulette) picks it or BSDF sampling with probability ½.
                 bsdf_sampling: !hg || hg_rr,
             },
+            visibility: super::Visibility::Centroid,
+            subdivision: super::DEFAULT_SUBDIVISION,
+            max_error: super::DEFAULT_MAX_ERROR,
         },
     })
 }

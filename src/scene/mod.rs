@@ -78,6 +78,36 @@ impl Model {
     }
 }
 
+/// Which shadow rays the deterministic `tri3` model casts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Visibility {
+    /// None: every triangle sees both wall points (fastest; exact for convex objects
+    /// facing the wall).
+    None,
+    /// One shadow ray from each triangle's centroid to each wall point.
+    Centroid,
+    /// One shadow ray per sub-triangle and wall point.
+    Subtriangle,
+}
+
+impl Visibility {
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "none" => Some(Self::None),
+            "centroid" => Some(Self::Centroid),
+            "subtriangle" => Some(Self::Subtriangle),
+            _ => None,
+        }
+    }
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Centroid => "centroid",
+            Self::Subtriangle => "subtriangle",
+        }
+    }
+}
+
 /// The visible diffuse relay wall: a rectangle `center + s * axis_u + t * axis_v`,
 /// `s, t ∈ [-1/2, 1/2]`. Its front (the side the hidden scene is on) is
 /// `axis_u × axis_v`. y-tal's convention puts it at `z = 0` with normal `+z`.
@@ -240,7 +270,19 @@ pub struct RenderSettings {
     pub seed: u64,
     pub model: Model,
     pub techniques: Techniques,
+    /// `tri3`: shadow rays.
+    pub visibility: Visibility,
+    /// `tri3`: largest `h² / (r w)` of a sub-triangle (edge `h`, height above the wall
+    /// `r`, film resolution `w`): the OPL curvature across it, in bins.
+    pub subdivision: f32,
+    /// `auto`: the relative error the chosen model may leave (fraction, e.g. 0.01).
+    pub max_error: f32,
 }
+
+/// Default `subdivision` of the `tri3` model (see `BENCHMARKS.md` for its error).
+pub const DEFAULT_SUBDIVISION: f32 = 0.15;
+/// Default `max_error` of `auto`.
+pub const DEFAULT_MAX_ERROR: f32 = 0.01;
 
 /// A complete NLOS scene, validated.
 #[derive(Clone, Debug)]
@@ -450,6 +492,18 @@ impl Scene {
         let r = &self.render;
         if r.spp == 0 {
             return err("render.spp", "must be at least 1".into());
+        }
+        if !(r.subdivision.is_finite() && r.subdivision > 0.0) {
+            return err(
+                "render.subdivision",
+                format!("must be > 0, got {}", r.subdivision),
+            );
+        }
+        if !(r.max_error.is_finite() && r.max_error > 0.0) {
+            return err(
+                "render.max_error",
+                format!("must be > 0, got {}", r.max_error),
+            );
         }
         if r.max_bounces < 3 {
             return err(

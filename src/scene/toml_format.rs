@@ -6,7 +6,7 @@
 
 use super::{
     CaptureType, Detector, FilmSpec, HiddenObject, KernelSpec, Laser, LaserEmission, Model,
-    RelayWall, RenderSettings, ScanGrid, Scene, Techniques,
+    RelayWall, RenderSettings, ScanGrid, Scene, Techniques, Visibility,
 };
 use crate::error::{Error, Result};
 use crate::geometry::mesh::TriMesh;
@@ -165,6 +165,22 @@ struct RenderT {
     hidden_geometry_includes_wall: bool,
     #[serde(default = "yes")]
     bsdf_sampling: bool,
+    #[serde(default = "default_visibility")]
+    visibility: String,
+    #[serde(default = "default_subdivision")]
+    subdivision: f32,
+    #[serde(default = "default_max_error")]
+    max_error: f32,
+}
+
+fn default_visibility() -> String {
+    "centroid".into()
+}
+fn default_subdivision() -> f32 {
+    super::DEFAULT_SUBDIVISION
+}
+fn default_max_error() -> f32 {
+    super::DEFAULT_MAX_ERROR
 }
 
 impl Default for RenderT {
@@ -386,6 +402,15 @@ pub fn parse(
             ))
         }
     };
+    let visibility = Visibility::parse(&r.visibility).ok_or_else(|| {
+        field(
+            "render.visibility",
+            format!(
+                "'{}' is not one of none, centroid, subtriangle",
+                r.visibility
+            ),
+        )
+    })?;
     let render = RenderSettings {
         spp: r.spp,
         max_bounces,
@@ -400,6 +425,9 @@ pub fn parse(
             hidden_geometry_includes_wall: r.hidden_geometry_includes_wall,
             bsdf_sampling: r.bsdf_sampling,
         },
+        visibility,
+        subdivision: r.subdivision,
+        max_error: r.max_error,
     };
 
     let scene = Scene {

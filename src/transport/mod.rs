@@ -11,18 +11,20 @@
 //! whose histograms are summed in block order, so the output does not depend on the
 //! number of threads.
 
+pub mod auto;
 pub mod mc3;
 pub mod path;
+pub mod render;
+pub mod tri3;
 
-use crate::error::{Error, Result};
+pub use render::{render, Progress, RenderOptions, Renderer, Transient};
+
 use crate::film::Film;
 use crate::geometry::{SceneGeometry, SurfaceKind};
 use crate::rng::Sampler;
 use crate::scene::{Model, Scene};
 use glam::Vec3;
-use rayon::prelude::*;
 use std::f32::consts::FRAC_1_PI;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 /// Samples per block of work (the unit of parallelism and of progress).
 pub const BLOCK_SPP: u32 = 1024;
@@ -138,139 +140,6 @@ impl<'a> MeasurementCtx<'a> {
     }
 }
 
-/// Sample count, seed and model of one render.
-#[derive(Clone, Copy, Debug)]
-pub struct RenderOptions {
-    pub model: Model,
-    pub spp: u32,
-    pub seed: u64,
-}
-
-impl RenderOptions {
-    pub fn from_scene(scene: &Scene) -> Self {
-        RenderOptions {
-            model: scene.render.model,
-            spp: scene.render.spp,
-            seed: scene.render.seed,
-        }
-    }
-}
-
-/// Shared progress counter and cancellation flag, for progress bars and Ctrl-C.
-#[derive(Default, Debug)]
-pub struct Progress {
-    pub samples_done: AtomicU64,
-    pub cancel: AtomicBool,
-}
-
-/// A rendered transient in mitransient's layout, row-major.
-#[derive(Clone, Debug)]
-pub struct Transient {
-    pub data: Vec<f32>,
-    /// `(sy, sx, T)` or `(ly, lx, sy, sx, T)`.
-    pub shape: Vec<usize>,
-}
-
-impl Transient {
-    pub fn bins(&self) -> usize {
-        *self.shape.last().unwrap_or(&0)
-    }
-}
-
-/// Total samples a render draws (for progress bars).
-pub fn total_samples(scene: &Scene, opts: &RenderOptions) -> u64 {
-    scene.num_measurements() as u64 * opts.spp as u64
-}
-
-/// Checks that `opts.model` can render `scene` and resolves `auto`.
-pub fn resolve_model(scene: &Scene, opts: &RenderOptions) -> Result<Model> {
-    let t = &scene.render.techniques;
-    match opts.model {
-        Model::Tri3 | Model::Auto => Err(Error::Invalid(format!(
-            "model '{}' is not available yet: use mc3 or path",
-            opts.model.name()
-        ))),
-        Model::Path if !t.bsdf_sampling && !t.hidden_geometry_sampling => Err(Error::Invalid(
-            "path model: bsdf_sampling and hidden_geometry_sampling are both off, so no path can leave the wall".into(),
-        )),
-        Model::Path if !t.laser_sampling && scene.laser.spot_radius <= 0.0 => Err(Error::Invalid(
-            "path model: with laser sampling off, paths must hit the lit spot, which needs laser.spot_radius > 0".into(),
-        )),
-        m => Ok(m),
-    }
-}
-
-/// Renders the scene's transient with the given model, spp and seed.
-pub fn render(
-    scene: &Scene,
-    geom: &SceneGeometry,
-    opts: &RenderOptions,
-    progress: Option<&Progress>,
-) -> Result<Transient> {
-    let model = resolve_model(scene, opts)?;
-    if geom.hidden.is_empty() {
-        let shape = scene.output_shape();
-        return Ok(Transient {
-            data: vec![0.0; shape.iter().product()],
-            shape,
-        });
-    }
-    let film = Film::new(&scene.film);
-    let bins = film.bins;
-    let n_blocks = opts.spp.div_ceil(BLOCK_SPP);
-    let mut data = vec![0.0f32; scene.num_measurements() * bins];
-    let cancelled = AtomicBool::new(false);
-    data.par_chunks_mut(bins).enumerate().for_each(|(m, out)| {
-        let ctx = MeasurementCtx::new(scene, geom, &film, m);
-        let blocks: Vec<Option<Vec<f64>>> = (0..n_blocks)
-            .into_par_iter()
-            .map(|b| {
-                if cancelled.load(Ordering::Relaxed)
-                    || progress.is_some_and(|p| p.cancel.load(Ordering::Relaxed))
-                {
-                    cancelled.store(true, Ordering::Relaxed);
-                    return None;
-                }
-                let first = b * BLOCK_SPP;
-                let last = (first + BLOCK_SPP).min(opts.spp);
-                let mut hist = vec![0.0f64; bins];
-                let mut sink = HistogramSink {
-                    film: &film,
-                    hist: &mut hist,
-                };
-                run_samples(model, &ctx, opts.seed, m as u64, first..last, &mut sink);
-                if let Some(p) = progress {
-                    p.samples_done
-                        .fetch_add((last - first) as u64, Ordering::Relaxed);
-                }
-                Some(hist)
-            })
-            .collect();
-        let inv_spp = 1.0 / opts.spp as f64;
-        let mut acc = vec![0.0f64; bins];
-        for h in blocks.into_iter().flatten() {
-            for (a, v) in acc.iter_mut().zip(h) {
-                *a += v;
-            }
-        }
-        for (o, a) in out.iter_mut().zip(acc) {
-            *o = (a * inv_spp) as f32;
-        }
-    });
-    if cancelled.load(Ordering::Relaxed) {
-        return Err(Error::Cancelled);
-    }
-    if let Some(i) = data.iter().position(|v| !v.is_finite()) {
-        return Err(Error::Invalid(format!(
-            "render produced a non-finite value at flat index {i}: refusing to write it (please report this scene)"
-        )));
-    }
-    Ok(Transient {
-        data,
-        shape: scene.output_shape(),
-    })
-}
-
 /// Runs samples `range` of measurement `m` with the model's sampling routine.
 pub fn run_samples<S: Sink>(
     model: Model,
@@ -286,7 +155,7 @@ pub fn run_samples<S: Sink>(
         match model {
             Model::Mc3 => mc3::sample(ctx, &mut sampler, sink),
             Model::Path => path::sample(ctx, &mut sampler, &mut scratch, sink),
-            Model::Tri3 | Model::Auto => unreachable!("resolved before rendering"),
+            Model::Tri3 | Model::Auto => unreachable!("not a Monte Carlo model"),
         }
     }
 }

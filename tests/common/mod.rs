@@ -29,7 +29,13 @@ pub fn try_scene(toml: &str, objs: &[(&str, &str)]) -> umbra::Result<Scene> {
 
 pub fn render(scene: &Scene, model: Model, spp: u32, seed: u64) -> Transient {
     let geom = SceneGeometry::build(scene);
-    transport::render(scene, &geom, &RenderOptions { model, spp, seed }, None).expect("render")
+    let opts = RenderOptions {
+        model,
+        spp,
+        seed,
+        ..RenderOptions::from_scene(scene)
+    };
+    transport::render(scene, &geom, &opts, None).expect("render")
 }
 
 /// A square of side `side` centred at `c` in the plane z = c.z, facing -z (the wall).

@@ -1,0 +1,242 @@
+//! Splat of a *triangle pulse*: the time profile of a triangle on which both the OPL `τ`
+//! and the radiometric weight `w` are linear (the per-triangle three-bounce model,
+//! DESIGN §3 rung 1, after Plack et al. 2023, with a linear instead of a constant weight).
+//!
+//! Sort the corners by OPL, `t0 ≤ t1 ≤ t2`, with weights `w0, w1, w2` and area `A`. The
+//! weighted area with `τ ≤ t` is, exactly,
+//!
+//! - on `[t0, t1]`: the corner triangle at `v0`, `W(t) = A a b (3 w0 + a (w1 − w0) + b (w2 − w0)) / 3`
+//!   with `a = (t − t0)/(t1 − t0)`, `b = (t − t0)/(t2 − t0)`;
+//! - on `[t1, t2]`: all but the corner triangle at `v2`,
+//!   `W(t) = W_tot − A c d (3 w2 + c (w1 − w2) + d (w0 − w2)) / 3` with
+//!   `c = (t2 − t)/(t2 − t1)`, `d = (t2 − t)/(t2 − t0)`, `W_tot = A (w0 + w1 + w2) / 3`;
+//!
+//! a cubic in `t` on each piece. A box bin receives `W(t_hi) − W(t_lo)`. Through a
+//! Gaussian kernel of deviation `σ` the mass below an edge `x` is
+//! `H(x) = ∫ Φ((x − t)/σ) dW(t) = W_tot Φ((x − t2)/σ) + ∫ W(t) φ((x − t)/σ) dt/σ`
+//! (by parts), and with `t = x − σu` the integral is a sum of Gaussian moments
+//! `∫ u^k φ(u) du` (antiderivatives `Φ`, `−φ`, `Φ − uφ`, `−(u² + 2)φ`) over each piece.
+
+use super::{Film, GAUSS_CUTOFF};
+use crate::scene::KernelSpec;
+
+/// Pulses narrower than this fraction of a bin (or of σ) are splatted as a point at
+/// their weighted mean: the shape is then below f64's resolution of the CDF.
+const NARROW: f64 = 1e-7;
+
+/// A triangle's corners: OPL and weight, sorted by OPL, and its area.
+#[derive(Clone, Copy, Debug)]
+struct Pulse {
+    t: [f64; 3],
+    w: [f64; 3],
+    area: f64,
+}
+
+impl Pulse {
+    fn new(t: [f64; 3], w: [f64; 3], area: f64) -> Self {
+        let mut i = [0usize, 1, 2];
+        i.sort_by(|&a, &b| t[a].total_cmp(&t[b]));
+        Pulse {
+            t: i.map(|k| t[k]),
+            w: i.map(|k| w[k]),
+            area,
+        }
+    }
+
+    fn total(&self) -> f64 {
+        self.area * (self.w[0] + self.w[1] + self.w[2]) / 3.0
+    }
+
+    /// Weighted area with OPL below `x` (box kernel).
+    fn cdf(&self, x: f64) -> f64 {
+        let ([t0, t1, t2], [w0, w1, w2]) = (self.t, self.w);
+        if x <= t0 {
+            0.0
+        } else if x >= t2 {
+            self.total()
+        } else if x <= t1 {
+            let (a, b) = ((x - t0) / (t1 - t0), (x - t0) / (t2 - t0));
+            self.area * a * b * (3.0 * w0 + a * (w1 - w0) + b * (w2 - w0)) / 3.0
+        } else {
+            let (c, d) = ((t2 - x) / (t2 - t1), (t2 - x) / (t2 - t0));
+            self.total() - self.area * c * d * (3.0 * w2 + c * (w1 - w2) + d * (w0 - w2)) / 3.0
+        }
+    }
+
+    /// `H(x) = ∫ Φ((x − t)/σ) dW(t)` (Gaussian kernel).
+    fn gauss_cdf(&self, sigma: f64, x: f64) -> f64 {
+        let ([t0, t1, t2], [w0, w1, w2]) = (self.t, self.w);
+        let span = t2 - t0;
+        let mut h = self.total() * cap_phi((x - t2) / sigma);
+        // Piece [t0, t1]: W = K (3 w0 z² + γ z³), z = t − t0 = D − σu.
+        if t1 > t0 {
+            let k = self.area / 3.0 / ((t1 - t0) * span);
+            let g = (w1 - w0) / (t1 - t0) + (w2 - w0) / span;
+            let d = x - t0;
+            let e = [
+                k * (3.0 * w0 * d * d + g * d * d * d),
+                k * (-6.0 * w0 * d * sigma - 3.0 * g * d * d * sigma),
+                k * (3.0 * w0 * sigma * sigma + 3.0 * g * d * sigma * sigma),
+                k * (-g * sigma * sigma * sigma),
+            ];
+            h += moments(e, (x - t1) / sigma, (x - t0) / sigma);
+        }
+        // Piece [t1, t2]: W = W_tot − K' (3 w2 y² + γ' y³), y = t2 − t = E + σu.
+        if t2 > t1 {
+            let k = self.area / 3.0 / ((t2 - t1) * span);
+            let g = (w1 - w2) / (t2 - t1) + (w0 - w2) / span;
+            let e_ = t2 - x;
+            let e = [
+                self.total() - k * (3.0 * w2 * e_ * e_ + g * e_ * e_ * e_),
+                -k * (6.0 * w2 * e_ * sigma + 3.0 * g * e_ * e_ * sigma),
+                -k * (3.0 * w2 * sigma * sigma + 3.0 * g * e_ * sigma * sigma),
+                -k * (g * sigma * sigma * sigma),
+            ];
+            h += moments(e, (x - t2) / sigma, (x - t1) / sigma);
+        }
+        h
+    }
+}
+
+/// `∫_{lo}^{hi} Σ_k e_k u^k φ(u) du`.
+fn moments(e: [f64; 4], lo: f64, hi: f64) -> f64 {
+    let anti = |u: f64| {
+        let (p, c) = (phi(u), cap_phi(u));
+        e[0] * c - e[1] * p + e[2] * (c - u * p) - e[3] * (u * u + 2.0) * p
+    };
+    anti(hi) - anti(lo)
+}
+
+impl Film {
+    /// Adds the triangle pulse with corner OPLs `t`, corner weights `w` (linear over the
+    /// triangle) and area `area` into `hist`: `area · mean(w)` in all, over the bins.
+    pub fn splat_triangle(&self, t: [f64; 3], w: [f64; 3], area: f64, hist: &mut [f64]) {
+        let p = Pulse::new(t, w, area);
+        let [t0, _, t2] = p.t;
+        let scale = match self.kernel {
+            KernelSpec::Box => self.width,
+            KernelSpec::Gaussian { sigma_opl } => (sigma_opl as f64).min(self.width),
+        };
+        let total = p.total();
+        if t2 - t0 <= NARROW * scale {
+            let wsum = p.w[0] + p.w[1] + p.w[2];
+            let mean = if wsum != 0.0 {
+                (p.t[0] * p.w[0] + p.t[1] * p.w[1] + p.t[2] * p.w[2]) / wsum
+            } else {
+                (t0 + t2) / 2.0
+            };
+            self.splat(mean as f32, total as f32, hist);
+            return;
+        }
+        let margin = match self.kernel {
+            KernelSpec::Box => 0.0,
+            KernelSpec::Gaussian { sigma_opl } => GAUSS_CUTOFF * sigma_opl as f64,
+        };
+        let first = ((t0 - margin - self.start) / self.width).floor();
+        let last = ((t2 + margin - self.start) / self.width).floor();
+        if last < 0.0 || first >= self.bins as f64 {
+            return;
+        }
+        let first = first.max(0.0) as usize;
+        let last = (last as usize).min(self.bins - 1);
+        let below = |x: f64| match self.kernel {
+            KernelSpec::Box => p.cdf(x),
+            KernelSpec::Gaussian { sigma_opl } => p.gauss_cdf(sigma_opl as f64, x),
+        };
+        let mut prev = below(self.start + first as f64 * self.width);
+        for (b, h) in hist.iter_mut().enumerate().take(last + 1).skip(first) {
+            let next = below(self.start + (b + 1) as f64 * self.width);
+            *h += next - prev;
+            prev = next;
+        }
+    }
+}
+
+fn phi(u: f64) -> f64 {
+    const INV_SQRT_2PI: f64 = 0.398_942_280_401_432_7;
+    INV_SQRT_2PI * (-0.5 * u * u).exp()
+}
+
+fn cap_phi(u: f64) -> f64 {
+    0.5 * libm::erfc(-u * std::f64::consts::FRAC_1_SQRT_2)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::FilmSpec;
+
+    fn film(kernel: KernelSpec) -> Film {
+        Film::new(&FilmSpec {
+            temporal_bins: 200,
+            bin_width_opl: 0.01,
+            start_opl: 1.0,
+            kernel,
+        })
+    }
+
+    /// Reference: a fine grid of points over the triangle (barycentric midpoints of a
+    /// 600 x 600 subdivision), each with its interpolated OPL and weight, splatted as points.
+    fn brute(f: &Film, t: [f64; 3], w: [f64; 3], area: f64) -> Vec<f64> {
+        let n = 600;
+        let mut h = vec![0.0; f.bins];
+        let cell = area / (n * n) as f64;
+        let mut add = |b1: f64, b2: f64| {
+            let b0 = 1.0 - b1 - b2;
+            let tau = b0 * t[0] + b1 * t[1] + b2 * t[2];
+            let wt = b0 * w[0] + b1 * w[1] + b2 * w[2];
+            f.splat(tau as f32, (wt * cell) as f32, &mut h);
+        };
+        for j in 0..n {
+            for i in 0..(n - j) {
+                let (x, y) = (i as f64, j as f64);
+                let nf = n as f64;
+                add((x + 1.0 / 3.0) / nf, (y + 1.0 / 3.0) / nf);
+                if i + j + 1 < n {
+                    add((x + 2.0 / 3.0) / nf, (y + 2.0 / 3.0) / nf);
+                }
+            }
+        }
+        h
+    }
+
+    #[test]
+    fn pulse_matches_a_fine_point_cloud() {
+        let cases = [
+            ([1.2031, 1.2417, 1.2244], [1.0, 1.0, 1.0]),
+            ([1.2031, 1.2417, 1.2244], [0.2, 1.7, 0.9]),
+            ([1.5, 1.5, 1.537], [0.5, 1.0, 2.0]),      // t0 = t1
+            ([1.30, 1.3413, 1.3413], [1.0, 0.1, 0.6]), // t1 = t2
+            ([1.0004, 1.0202, 0.998], [1.0, 2.0, 0.0]), // cut at the film's start
+        ];
+        for kernel in [KernelSpec::Box, KernelSpec::Gaussian { sigma_opl: 0.013 }] {
+            let f = film(kernel);
+            for (t, w) in cases {
+                let mut exact = vec![0.0; f.bins];
+                f.splat_triangle(t, w, 0.3, &mut exact);
+                let reference = brute(&f, t, w, 0.3);
+                let scale = exact.iter().cloned().fold(0.0, f64::max);
+                for (b, (e, r)) in exact.iter().zip(&reference).enumerate() {
+                    assert!(
+                        (e - r).abs() < 3e-3 * scale,
+                        "{kernel:?} {t:?} {w:?} bin {b}: {e} vs {r}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn pulse_conserves_its_total() {
+        for kernel in [KernelSpec::Box, KernelSpec::Gaussian { sigma_opl: 0.004 }] {
+            let f = film(kernel);
+            let mut h = vec![0.0; f.bins];
+            f.splat_triangle([1.5, 1.61, 1.52], [0.3, 0.9, 1.2], 2.0, &mut h);
+            let want = 2.0 * (0.3 + 0.9 + 1.2) / 3.0;
+            assert!(
+                (h.iter().sum::<f64>() - want).abs() < 1e-9 * want,
+                "{kernel:?}"
+            );
+        }
+    }
+}

@@ -1,0 +1,256 @@
+//! The render driver: resolves the model (`auto` included), prepares it, and runs it over
+//! all measurements in parallel.
+//!
+//! Determinism: the Monte Carlo models draw sample `i` of measurement `m` from
+//! `Sampler::new(seed, m, i)` in fixed blocks of [`BLOCK_SPP`] whose histograms are
+//! summed in block order; `tri3` is deterministic. Either way the output does not depend
+//! on the number of threads.
+
+use super::auto::{choose_model, AutoChoice};
+use super::tri3::{self, Tri3Mesh, Tri3Scratch};
+use super::{run_samples, HistogramSink, MeasurementCtx, BLOCK_SPP};
+use crate::error::{Error, Result};
+use crate::film::Film;
+use crate::geometry::SceneGeometry;
+use crate::scene::{Model, Scene, Visibility};
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+
+/// What to render: model, samples, seed, and the `tri3` / `auto` settings.
+#[derive(Clone, Copy, Debug)]
+pub struct RenderOptions {
+    pub model: Model,
+    pub spp: u32,
+    pub seed: u64,
+    pub visibility: Visibility,
+    pub subdivision: f32,
+    pub max_error: f32,
+}
+
+impl RenderOptions {
+    pub fn from_scene(scene: &Scene) -> Self {
+        let r = &scene.render;
+        RenderOptions {
+            model: r.model,
+            spp: r.spp,
+            seed: r.seed,
+            visibility: r.visibility,
+            subdivision: r.subdivision,
+            max_error: r.max_error,
+        }
+    }
+}
+
+/// Shared progress counter and cancellation flag, for progress bars and Ctrl-C.
+/// Work is counted in samples (Monte Carlo) or triangle pairs (`tri3`).
+#[derive(Default, Debug)]
+pub struct Progress {
+    pub work_done: AtomicU64,
+    pub cancel: AtomicBool,
+}
+
+/// A rendered transient in mitransient's layout, row-major.
+#[derive(Clone, Debug)]
+pub struct Transient {
+    pub data: Vec<f32>,
+    /// `(sy, sx, T)` or `(ly, lx, sy, sx, T)`.
+    pub shape: Vec<usize>,
+}
+
+impl Transient {
+    pub fn bins(&self) -> usize {
+        *self.shape.last().unwrap_or(&0)
+    }
+}
+
+/// A scene ready to render with a resolved model.
+pub struct Renderer<'a> {
+    scene: &'a Scene,
+    geom: &'a SceneGeometry,
+    opts: RenderOptions,
+    film: Film,
+    /// The model that runs (never `Auto`).
+    pub model: Model,
+    /// Why `auto` chose `model`, with the pilot's measurements.
+    pub auto_choice: Option<AutoChoice>,
+    tri3: Option<Tri3Mesh>,
+}
+
+impl<'a> Renderer<'a> {
+    pub fn new(scene: &'a Scene, geom: &'a SceneGeometry, opts: &RenderOptions) -> Result<Self> {
+        let (model, auto_choice) = match opts.model {
+            Model::Auto => {
+                let c = choose_model(scene, geom, opts)?;
+                (c.model, Some(c))
+            }
+            m => (m, None),
+        };
+        check_model(scene, model)?;
+        let tri3 = (model == Model::Tri3).then(|| Tri3Mesh::build(scene, geom, opts.subdivision));
+        Ok(Renderer {
+            scene,
+            geom,
+            opts: *opts,
+            film: Film::new(&scene.film),
+            model,
+            auto_choice,
+            tri3,
+        })
+    }
+
+    /// Units of work the render does (for progress bars): samples or triangle pairs.
+    pub fn total_work(&self) -> u64 {
+        let per_measurement = match &self.tri3 {
+            Some(mesh) => mesh.len() as u64,
+            None => self.opts.spp as u64,
+        };
+        self.scene.num_measurements() as u64 * per_measurement
+    }
+
+    /// What a unit of work is called.
+    pub fn work_unit(&self) -> &'static str {
+        if self.tri3.is_some() {
+            "pairs"
+        } else {
+            "samples"
+        }
+    }
+
+    /// Sub-triangles of the `tri3` model (0 for the Monte Carlo models).
+    pub fn subtriangles(&self) -> usize {
+        self.tri3.as_ref().map_or(0, Tri3Mesh::len)
+    }
+
+    /// Renders every measurement.
+    pub fn render(&self, progress: Option<&Progress>) -> Result<Transient> {
+        let bins = self.film.bins;
+        let mut data = vec![0.0f32; self.scene.num_measurements() * bins];
+        let cancelled = AtomicBool::new(false);
+        let stop = || {
+            let c = cancelled.load(Ordering::Relaxed)
+                || progress.is_some_and(|p| p.cancel.load(Ordering::Relaxed));
+            if c {
+                cancelled.store(true, Ordering::Relaxed);
+            }
+            c
+        };
+        if !self.geom.hidden.is_empty() {
+            data.par_chunks_mut(bins).enumerate().for_each_init(
+                Tri3Scratch::default,
+                |scratch, (m, out)| {
+                    if stop() {
+                        return;
+                    }
+                    let ctx = MeasurementCtx::new(self.scene, self.geom, &self.film, m);
+                    let hist = match &self.tri3 {
+                        Some(mesh) => {
+                            let mut hist = vec![0.0f64; bins];
+                            let v = self.opts.visibility;
+                            tri3::render_measurement(mesh, &ctx, &self.film, v, scratch, &mut hist);
+                            if let Some(p) = progress {
+                                p.work_done.fetch_add(mesh.len() as u64, Ordering::Relaxed);
+                            }
+                            hist
+                        }
+                        None => match self.monte_carlo(&ctx, m, progress, &stop) {
+                            Some(h) => h,
+                            None => return,
+                        },
+                    };
+                    for (o, a) in out.iter_mut().zip(hist) {
+                        *o = a as f32;
+                    }
+                },
+            );
+        }
+        if cancelled.load(Ordering::Relaxed) {
+            return Err(Error::Cancelled);
+        }
+        if let Some(i) = data.iter().position(|v| !v.is_finite()) {
+            return Err(Error::Invalid(format!(
+                "render produced a non-finite value at flat index {i}: refusing to write it (please report this scene)"
+            )));
+        }
+        Ok(Transient {
+            data,
+            shape: self.scene.output_shape(),
+        })
+    }
+
+    /// The Monte Carlo estimate of one measurement (mean over spp), or `None` if
+    /// cancelled.
+    fn monte_carlo(
+        &self,
+        ctx: &MeasurementCtx,
+        m: usize,
+        progress: Option<&Progress>,
+        stop: &(dyn Fn() -> bool + Sync),
+    ) -> Option<Vec<f64>> {
+        let (bins, spp) = (self.film.bins, self.opts.spp);
+        let blocks: Vec<Option<Vec<f64>>> = (0..spp.div_ceil(BLOCK_SPP))
+            .into_par_iter()
+            .map(|b| {
+                if stop() {
+                    return None;
+                }
+                let first = b * BLOCK_SPP;
+                let last = (first + BLOCK_SPP).min(spp);
+                let mut hist = vec![0.0f64; bins];
+                let mut sink = HistogramSink {
+                    film: &self.film,
+                    hist: &mut hist,
+                };
+                run_samples(
+                    self.model,
+                    ctx,
+                    self.opts.seed,
+                    m as u64,
+                    first..last,
+                    &mut sink,
+                );
+                if let Some(p) = progress {
+                    p.work_done
+                        .fetch_add((last - first) as u64, Ordering::Relaxed);
+                }
+                Some(hist)
+            })
+            .collect();
+        let mut acc = vec![0.0f64; bins];
+        for h in blocks {
+            for (a, v) in acc.iter_mut().zip(h?) {
+                *a += v;
+            }
+        }
+        let inv_spp = 1.0 / spp as f64;
+        acc.iter_mut().for_each(|a| *a *= inv_spp);
+        Some(acc)
+    }
+}
+
+/// Checks that `model` can render `scene` with its settings.
+fn check_model(scene: &Scene, model: Model) -> Result<()> {
+    let t = &scene.render.techniques;
+    match model {
+        Model::Path if !t.bsdf_sampling && !t.hidden_geometry_sampling => Err(Error::Invalid(
+            "path model: bsdf_sampling and hidden_geometry_sampling are both off, so no path can leave the wall".into(),
+        )),
+        Model::Path if !t.laser_sampling && scene.laser.spot_radius <= 0.0 => Err(Error::Invalid(
+            "path model: with laser sampling off, paths must hit the lit spot, which needs laser.spot_radius > 0".into(),
+        )),
+        Model::Tri3 if scene.laser.spot_radius > 0.0 => Err(Error::Invalid(
+            "tri3 model: the laser spot must be a point (spot_radius = 0); use mc3 or path".into(),
+        )),
+        Model::Auto => Err(Error::Invalid("auto must resolve to a model".into())),
+        _ => Ok(()),
+    }
+}
+
+/// Renders the scene's transient (a [`Renderer`] made and run in one call).
+pub fn render(
+    scene: &Scene,
+    geom: &SceneGeometry,
+    opts: &RenderOptions,
+    progress: Option<&Progress>,
+) -> Result<Transient> {
+    Renderer::new(scene, geom, opts)?.render(progress)
+}

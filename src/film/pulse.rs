@@ -24,55 +24,77 @@ use crate::scene::KernelSpec;
 /// their weighted mean: the shape is then below f64's resolution of the CDF.
 const NARROW: f64 = 1e-7;
 
-/// A triangle's corners: OPL and weight, sorted by OPL, and its area.
+/// A triangle's corners sorted by OPL, with the constants of its two cubic pieces.
 #[derive(Clone, Copy, Debug)]
 struct Pulse {
     t: [f64; 3],
     w: [f64; 3],
-    area: f64,
+    total: f64,
+    /// `[t0, t1]`: `W = ka z² (3 w0 + ga z)`, `z = t − t0`.
+    ka: f64,
+    ga: f64,
+    /// `[t1, t2]`: `W = total − kb y² (3 w2 + gb y)`, `y = t2 − t`.
+    kb: f64,
+    gb: f64,
 }
 
 impl Pulse {
+    #[inline]
     fn new(t: [f64; 3], w: [f64; 3], area: f64) -> Self {
-        let mut i = [0usize, 1, 2];
-        i.sort_by(|&a, &b| t[a].total_cmp(&t[b]));
+        // Sorting network on (t, w) pairs.
+        let (mut t, mut w) = (t, w);
+        let mut swap = |i: usize, j: usize| {
+            if t[j] < t[i] {
+                t.swap(i, j);
+                w.swap(i, j);
+            }
+        };
+        swap(0, 1);
+        swap(1, 2);
+        swap(0, 1);
+        let ([t0, t1, t2], [w0, w1, w2]) = (t, w);
+        let span = t2 - t0;
+        let (ka, ga) = if t1 > t0 {
+            (area / 3.0 / ((t1 - t0) * span), (w1 - w0) / (t1 - t0) + (w2 - w0) / span)
+        } else {
+            (0.0, 0.0)
+        };
+        let (kb, gb) = if t2 > t1 {
+            (area / 3.0 / ((t2 - t1) * span), (w1 - w2) / (t2 - t1) + (w0 - w2) / span)
+        } else {
+            (0.0, 0.0)
+        };
         Pulse {
-            t: i.map(|k| t[k]),
-            w: i.map(|k| w[k]),
-            area,
+            t,
+            w,
+            total: area * (w0 + w1 + w2) / 3.0,
+            ka,
+            ga,
+            kb,
+            gb,
         }
     }
 
-    fn total(&self) -> f64 {
-        self.area * (self.w[0] + self.w[1] + self.w[2]) / 3.0
-    }
-
-    /// Weighted area with OPL below `x` (box kernel).
-    fn cdf(&self, x: f64) -> f64 {
-        let ([t0, t1, t2], [w0, w1, w2]) = (self.t, self.w);
-        if x <= t0 {
-            0.0
-        } else if x >= t2 {
-            self.total()
-        } else if x <= t1 {
-            let (a, b) = ((x - t0) / (t1 - t0), (x - t0) / (t2 - t0));
-            self.area * a * b * (3.0 * w0 + a * (w1 - w0) + b * (w2 - w0)) / 3.0
+    /// Weighted area with OPL below `x`, for `t0 ≤ x ≤ t2` (box kernel).
+    #[inline]
+    fn cdf_inside(&self, x: f64) -> f64 {
+        let ([t0, t1, t2], [w0, _, w2]) = (self.t, self.w);
+        if x <= t1 {
+            let z = x - t0;
+            self.ka * z * z * (3.0 * w0 + self.ga * z)
         } else {
-            let (c, d) = ((t2 - x) / (t2 - t1), (t2 - x) / (t2 - t0));
-            self.total() - self.area * c * d * (3.0 * w2 + c * (w1 - w2) + d * (w0 - w2)) / 3.0
+            let y = t2 - x;
+            self.total - self.kb * y * y * (3.0 * w2 + self.gb * y)
         }
     }
 
     /// `H(x) = ∫ Φ((x − t)/σ) dW(t)` (Gaussian kernel).
     fn gauss_cdf(&self, sigma: f64, x: f64) -> f64 {
-        let ([t0, t1, t2], [w0, w1, w2]) = (self.t, self.w);
-        let span = t2 - t0;
-        let mut h = self.total() * cap_phi((x - t2) / sigma);
-        // Piece [t0, t1]: W = K (3 w0 z² + γ z³), z = t − t0 = D − σu.
+        let ([t0, t1, t2], [w0, _, w2]) = (self.t, self.w);
+        let mut h = self.total * cap_phi((x - t2) / sigma);
+        // Piece [t0, t1]: W = ka (3 w0 z² + ga z³), z = t − t0 = d − σu.
         if t1 > t0 {
-            let k = self.area / 3.0 / ((t1 - t0) * span);
-            let g = (w1 - w0) / (t1 - t0) + (w2 - w0) / span;
-            let d = x - t0;
+            let (k, g, d) = (self.ka, self.ga, x - t0);
             let e = [
                 k * (3.0 * w0 * d * d + g * d * d * d),
                 k * (-6.0 * w0 * d * sigma - 3.0 * g * d * d * sigma),
@@ -81,13 +103,11 @@ impl Pulse {
             ];
             h += moments(e, (x - t1) / sigma, (x - t0) / sigma);
         }
-        // Piece [t1, t2]: W = W_tot − K' (3 w2 y² + γ' y³), y = t2 − t = E + σu.
+        // Piece [t1, t2]: W = total − kb (3 w2 y² + gb y³), y = t2 − t = e + σu.
         if t2 > t1 {
-            let k = self.area / 3.0 / ((t2 - t1) * span);
-            let g = (w1 - w2) / (t2 - t1) + (w0 - w2) / span;
-            let e_ = t2 - x;
+            let (k, g, e_) = (self.kb, self.gb, t2 - x);
             let e = [
-                self.total() - k * (3.0 * w2 * e_ * e_ + g * e_ * e_ * e_),
+                self.total - k * (3.0 * w2 * e_ * e_ + g * e_ * e_ * e_),
                 -k * (6.0 * w2 * e_ * sigma + 3.0 * g * e_ * e_ * sigma),
                 -k * (3.0 * w2 * sigma * sigma + 3.0 * g * e_ * sigma * sigma),
                 -k * (g * sigma * sigma * sigma),
@@ -110,44 +130,61 @@ fn moments(e: [f64; 4], lo: f64, hi: f64) -> f64 {
 impl Film {
     /// Adds the triangle pulse with corner OPLs `t`, corner weights `w` (linear over the
     /// triangle) and area `area` into `hist`: `area · mean(w)` in all, over the bins.
+    #[inline]
     pub fn splat_triangle(&self, t: [f64; 3], w: [f64; 3], area: f64, hist: &mut [f64]) {
         let p = Pulse::new(t, w, area);
-        let [t0, _, t2] = p.t;
-        let scale = match self.kernel {
-            KernelSpec::Box => self.width,
-            KernelSpec::Gaussian { sigma_opl } => (sigma_opl as f64).min(self.width),
+        let [t0, t1, t2] = p.t;
+        let (sigma, margin, scale) = match self.kernel {
+            KernelSpec::Box => (0.0, 0.0, self.width),
+            KernelSpec::Gaussian { sigma_opl } => {
+                let s = sigma_opl as f64;
+                (s, GAUSS_CUTOFF * s, s.min(self.width))
+            }
         };
-        let total = p.total();
         if t2 - t0 <= NARROW * scale {
             let wsum = p.w[0] + p.w[1] + p.w[2];
             let mean = if wsum != 0.0 {
-                (p.t[0] * p.w[0] + p.t[1] * p.w[1] + p.t[2] * p.w[2]) / wsum
+                (t0 * p.w[0] + t1 * p.w[1] + t2 * p.w[2]) / wsum
             } else {
                 (t0 + t2) / 2.0
             };
-            self.splat(mean as f32, total as f32, hist);
+            self.splat(mean as f32, p.total as f32, hist);
             return;
         }
-        let margin = match self.kernel {
-            KernelSpec::Box => 0.0,
-            KernelSpec::Gaussian { sigma_opl } => GAUSS_CUTOFF * sigma_opl as f64,
-        };
-        let first = ((t0 - margin - self.start) / self.width).floor();
-        let last = ((t2 + margin - self.start) / self.width).floor();
+        let inv_width = 1.0 / self.width;
+        let first = ((t0 - margin - self.start) * inv_width).floor();
+        let last = ((t2 + margin - self.start) * inv_width).floor();
         if last < 0.0 || first >= self.bins as f64 {
             return;
         }
-        let first = first.max(0.0) as usize;
-        let last = (last as usize).min(self.bins - 1);
-        let below = |x: f64| match self.kernel {
-            KernelSpec::Box => p.cdf(x),
-            KernelSpec::Gaussian { sigma_opl } => p.gauss_cdf(sigma_opl as f64, x),
-        };
-        let mut prev = below(self.start + first as f64 * self.width);
-        for (b, h) in hist.iter_mut().enumerate().take(last + 1).skip(first) {
-            let next = below(self.start + (b + 1) as f64 * self.width);
-            *h += next - prev;
-            prev = next;
+        let (first_bin, last_bin) = (first as i64, last as i64);
+        let lo = first_bin.max(0) as usize;
+        let hi = (last_bin as usize).min(self.bins - 1);
+        let edge = |b: usize| self.start + b as f64 * self.width;
+        if sigma == 0.0 {
+            // Box: W is 0 at or before the first edge, `total` from the last bin's far edge.
+            if first_bin == last_bin {
+                hist[lo] += p.total;
+                return;
+            }
+            let mut prev = if first_bin < 0 { p.cdf_inside(edge(0).max(t0)) } else { 0.0 };
+            // Bins before the pulse's last one end inside it; the last one takes the rest.
+            let inner_end = (last_bin as usize).min(hi + 1);
+            for b in lo..inner_end {
+                let next = p.cdf_inside(edge(b + 1).min(t2));
+                hist[b] += next - prev;
+                prev = next;
+            }
+            if last_bin as usize <= hi {
+                hist[last_bin as usize] += p.total - prev;
+            }
+        } else {
+            let mut prev = p.gauss_cdf(sigma, edge(lo));
+            for (b, h) in hist.iter_mut().enumerate().take(hi + 1).skip(lo) {
+                let next = p.gauss_cdf(sigma, edge(b + 1));
+                *h += next - prev;
+                prev = next;
+            }
         }
     }
 }

@@ -57,7 +57,7 @@ impl AreaDistribution {
             morton3(q.x as u32) | (morton3(q.y as u32) << 1) | (morton3(q.z as u32) << 2)
         };
         let mut order: Vec<u32> = (0..areas.len() as u32).collect();
-        order.sort_by_key(|&i| (key(centroids[i as usize]), i));
+        order.sort_by_cached_key(|&i| (key(centroids[i as usize]), i));
         Self::with_order(areas, order)
     }
 

@@ -37,28 +37,30 @@ use crate::film::Film;
 use crate::geometry::{HiddenTri, SceneGeometry};
 use crate::scene::{KernelSpec, Scene, Visibility};
 use glam::Vec3;
+use std::collections::HashMap;
 use std::f32::consts::FRAC_1_PI;
 
 /// Subdivision is capped at this level (`4^8` sub-triangles per triangle).
 pub const MAX_LEVEL: u32 = 8;
 
-/// The hidden meshes subdivided for the model, structure of arrays. Vertices are not
-/// shared between original triangles, so each vertex carries its triangle's normal.
+/// The hidden meshes subdivided for the model, structure of arrays. Vertices at the
+/// same position within an object are shared, so the per-vertex work of a measurement
+/// (distances, cosines at the wall) is done once per vertex, not once per corner.
 #[derive(Clone, Debug, Default)]
 pub struct Tri3Mesh {
     /// Sub-triangle vertices.
     pub vertices: Vec<Vec3>,
-    /// Per vertex: the unit normal of the triangle it belongs to.
-    pub vertex_normal: Vec<Vec3>,
     /// Per vertex: `ρ/π` (1/sr).
     pub vertex_brdf: Vec<f32>,
-    /// Per vertex: one- or two-sided.
-    pub vertex_two_sided: Vec<bool>,
     /// Per sub-triangle: vertex indices.
     pub tris: Vec<[u32; 3]>,
+    /// Per sub-triangle: unit normal (its original triangle's).
+    pub normal: Vec<Vec3>,
+    /// Per sub-triangle: reflects on both sides.
+    pub two_sided: Vec<bool>,
     /// Per sub-triangle: area (m²).
     pub area: Vec<f32>,
-    /// Per sub-triangle: centroid (for `subtriangle` visibility).
+    /// Per sub-triangle: centroid (curvature shift, `subtriangle` visibility).
     pub centroid: Vec<Vec3>,
     /// Per sub-triangle: flat index of the original triangle.
     pub parent: Vec<u32>,
@@ -75,12 +77,14 @@ impl Tri3Mesh {
             KernelSpec::Gaussian { sigma_opl } => sigma_opl.max(scene.film.bin_width_opl),
         };
         let mut m = Tri3Mesh::default();
+        let mut shared: HashMap<(u32, [u32; 3], u32), u32> = HashMap::new();
         for (flat, t) in geom.hidden.iter().enumerate() {
-            let r =
-                t.v.iter()
-                    .map(|&v| scene.wall.height_above(v))
-                    .fold(f32::INFINITY, f32::min)
-                    .max(1e-4);
+            let r = t
+                .v
+                .iter()
+                .map(|&v| scene.wall.height_above(v))
+                .fold(f32::INFINITY, f32::min)
+                .max(1e-4);
             let edge = (t.v[1] - t.v[0])
                 .length()
                 .max((t.v[2] - t.v[1]).length())
@@ -91,7 +95,8 @@ impl Tri3Mesh {
                 level += 1;
             }
             m.parent_centroid.push((t.v[0] + t.v[1] + t.v[2]) / 3.0);
-            m.push_subdivided(flat as u32, t, level);
+            let object = geom.flat_to_local[flat].0;
+            m.push_subdivided(flat as u32, object, t, level, &mut shared);
         }
         m
     }
@@ -106,49 +111,64 @@ impl Tri3Mesh {
 
     /// Midpoint subdivision into `4^level` triangles on a barycentric grid of
     /// `n = 2^level` steps: vertex `(i, j)` has barycentrics `(i/n, j/n)`.
-    fn push_subdivided(&mut self, flat: u32, t: &HiddenTri, level: u32) {
+    fn push_subdivided(
+        &mut self,
+        flat: u32,
+        object: u32,
+        t: &HiddenTri,
+        level: u32,
+        shared: &mut HashMap<(u32, [u32; 3], u32), u32>,
+    ) {
         let n = 1u32 << level;
-        let base = self.vertices.len() as u32;
-        // Row j holds i = 0..=n-j; rows are consecutive.
-        let mut row_start = Vec::with_capacity(n as usize + 1);
-        let mut count = 0u32;
+        let mut grid = Vec::with_capacity(((n + 1) * (n + 2) / 2) as usize);
         for j in 0..=n {
-            row_start.push(count);
             for i in 0..=(n - j) {
                 let bary = [i as f32 / n as f32, j as f32 / n as f32];
-                self.vertices.push(t.point(bary));
-                self.vertex_normal.push(t.n);
-                self.vertex_brdf.push(t.albedo_at(bary) * FRAC_1_PI);
-                self.vertex_two_sided.push(t.two_sided);
-                count += 1;
+                let p = t.point(bary);
+                let brdf = t.albedo_at(bary) * FRAC_1_PI;
+                let key = (object, p.to_array().map(f32::to_bits), brdf.to_bits());
+                let next = self.vertices.len() as u32;
+                let id = *shared.entry(key).or_insert(next);
+                if id == next {
+                    self.vertices.push(p);
+                    self.vertex_brdf.push(brdf);
+                }
+                grid.push(id);
             }
         }
-        let vid = |i: u32, j: u32| base + row_start[j as usize] + i;
-        let mut push = |a: u32, b: u32, c: u32| {
-            let [pa, pb, pc] = [a, b, c].map(|k| self.vertices[k as usize]);
-            self.tris.push([a, b, c]);
-            self.area.push(0.5 * (pb - pa).cross(pc - pa).length());
-            self.centroid.push((pa + pb + pc) / 3.0);
-            self.parent.push(flat);
-        };
+        // Row j of the grid starts after rows 0..j, of n + 1, n, … entries.
+        let row = |j: u32| (j * (n + 1) - j * j.saturating_sub(1) / 2) as usize;
+        let vid = |i: u32, j: u32| grid[row(j) + i as usize];
         for j in 0..n {
             for i in 0..(n - j) {
-                push(vid(i, j), vid(i + 1, j), vid(i, j + 1));
+                let mut tris = vec![[vid(i, j), vid(i + 1, j), vid(i, j + 1)]];
                 if i + j + 1 < n {
-                    push(vid(i + 1, j), vid(i + 1, j + 1), vid(i, j + 1));
+                    tris.push([vid(i + 1, j), vid(i + 1, j + 1), vid(i, j + 1)]);
+                }
+                for tri in tris {
+                    let [pa, pb, pc] = tri.map(|k| self.vertices[k as usize]);
+                    self.tris.push(tri);
+                    self.normal.push(t.n);
+                    self.two_sided.push(t.two_sided);
+                    self.area.push(0.5 * (pb - pa).cross(pc - pa).length());
+                    self.centroid.push((pa + pb + pc) / 3.0);
+                    self.parent.push(flat);
                 }
             }
         }
     }
 }
 
-/// Reusable per-thread buffers.
+/// Reusable per-thread buffers, per vertex for the current measurement.
 #[derive(Default)]
 pub struct Tri3Scratch {
-    /// Per vertex, for the current measurement: OPL (m).
+    /// OPL (m).
     opl: Vec<f32>,
-    /// Per vertex: `(ρ/π) G(x_l, v) G(v, x_s)`, 0 where the vertex faces away.
-    weight: Vec<f32>,
+    /// Unit directions to the laser spot and to the sensor point.
+    to_l: Vec<Vec3>,
+    to_s: Vec<Vec3>,
+    /// `(ρ/π) cos θ_wall,l cos θ_wall,s / (r_l² r_s²)`, 0 behind the wall's front.
+    base: Vec<f32>,
     /// Per original triangle: visible from both wall points (centroid visibility).
     visible: Vec<bool>,
 }
@@ -164,27 +184,27 @@ pub fn render_measurement(
 ) {
     let (x_l, x_s, n_w) = (ctx.x_l, ctx.x_s, ctx.n_w);
     let legs = ctx.opl_laser_leg(x_l) + ctx.opl_sensor_leg;
-    scratch.opl.clear();
-    scratch.weight.clear();
-    for (k, &v) in mesh.vertices.iter().enumerate() {
+    let nv = mesh.vertices.len();
+    scratch.opl.resize(nv, 0.0);
+    scratch.to_l.resize(nv, Vec3::ZERO);
+    scratch.to_s.resize(nv, Vec3::ZERO);
+    scratch.base.resize(nv, 0.0);
+    for k in 0..nv {
+        let v = mesh.vertices[k];
         let (dl, ds) = (x_l - v, x_s - v);
         let (rl2, rs2) = (dl.length_squared(), ds.length_squared());
-        let (rl, rs) = (rl2.sqrt(), rs2.sqrt());
-        scratch.opl.push(rl + rs + legs);
-        let n = mesh.vertex_normal[k];
-        let (cos_vl, cos_vs) = (n.dot(dl) / rl, n.dot(ds) / rs);
-        let facing = if mesh.vertex_two_sided[k] {
-            cos_vl * cos_vs > 0.0
-        } else {
-            cos_vl > 0.0 && cos_vs > 0.0
-        };
-        let (cos_wl, cos_ws) = (-n_w.dot(dl) / rl, -n_w.dot(ds) / rs);
-        let w = if facing && cos_wl > 0.0 && cos_ws > 0.0 {
-            mesh.vertex_brdf[k] * cos_wl * cos_vl.abs() / rl2 * cos_vs.abs() * cos_ws / rs2
+        let (inv_rl, inv_rs) = (rl2.sqrt().recip(), rs2.sqrt().recip());
+        let (ul, us) = (dl * inv_rl, ds * inv_rs);
+        scratch.opl[k] = rl2 * inv_rl + rs2 * inv_rs + legs;
+        scratch.to_l[k] = ul;
+        scratch.to_s[k] = us;
+        let (cos_wl, cos_ws) = (-n_w.dot(ul), -n_w.dot(us));
+        let front = cos_wl > 0.0 && cos_ws > 0.0;
+        scratch.base[k] = if front {
+            mesh.vertex_brdf[k] * cos_wl * cos_ws / (rl2 * rs2)
         } else {
             0.0
         };
-        scratch.weight.push(w);
     }
     if visibility == Visibility::Centroid {
         scratch.visible.clear();
@@ -196,33 +216,46 @@ pub fn render_measurement(
     }
     let scale = (ctx.power * ctx.f_wall * ctx.f_wall) as f64;
     for (k, tri) in mesh.tris.iter().enumerate() {
-        let w = tri.map(|i| scratch.weight[i as usize]);
+        let n = mesh.normal[k];
+        let two_sided = mesh.two_sided[k];
+        let [i0, i1, i2] = [tri[0] as usize, tri[1] as usize, tri[2] as usize];
+        let corner = |i: usize| {
+            let (cl, cs) = (n.dot(scratch.to_l[i]), n.dot(scratch.to_s[i]));
+            let facing = if two_sided {
+                cl * cs > 0.0
+            } else {
+                cl > 0.0 && cs > 0.0
+            };
+            if facing {
+                scratch.base[i] * (cl * cs).abs()
+            } else {
+                0.0
+            }
+        };
+        let w = [corner(i0), corner(i1), corner(i2)];
         if w[0] <= 0.0 && w[1] <= 0.0 && w[2] <= 0.0 {
             continue;
         }
-        let t = tri.map(|i| scratch.opl[i as usize]);
+        let t = [scratch.opl[i0], scratch.opl[i1], scratch.opl[i2]];
         let t_min = t[0].min(t[1]).min(t[2]);
         let t_max = t[0].max(t[1]).max(t[2]);
         if t_max < ctx.opl_min || t_min >= ctx.opl_max {
             continue;
         }
+        let c = mesh.centroid[k];
         let visible = match visibility {
             Visibility::None => true,
             Visibility::Centroid => scratch.visible[mesh.parent[k] as usize],
-            Visibility::Subtriangle => {
-                let c = mesh.centroid[k];
-                !ctx.geom.occluded(c, x_l) && !ctx.geom.occluded(c, x_s)
-            }
+            Visibility::Subtriangle => !ctx.geom.occluded(c, x_l) && !ctx.geom.occluded(c, x_s),
         };
         if visible {
             // τ is not linear: shift the pulse so its mean is the quadratic-exact mean
             // (1/12) Σ τ(v_i) + (3/4) τ(c), a second-order correction of its position.
-            let c = mesh.centroid[k];
             let tau_c = (x_l - c).length() + (x_s - c).length() + legs;
             let shift = 0.75 * (tau_c - (t[0] + t[1] + t[2]) / 3.0);
             film.splat_triangle(
-                t.map(|x| (x + shift) as f64),
-                w.map(|x| x as f64 * scale),
+                [(t[0] + shift) as f64, (t[1] + shift) as f64, (t[2] + shift) as f64],
+                [w[0] as f64 * scale, w[1] as f64 * scale, w[2] as f64 * scale],
                 mesh.area[k] as f64,
                 hist,
             );

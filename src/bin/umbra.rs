@@ -26,6 +26,24 @@ struct Cli {
 enum Command {
     /// Render a transient. With no SCENE, renders the built-in default scene.
     Render(RenderArgs),
+    /// Built-in benchmarks: `tri3` (speed on the 10k-triangle reference case and the
+    /// error-vs-subdivision table).
+    Bench(BenchArgs),
+}
+
+#[derive(clap::Args)]
+struct BenchArgs {
+    /// Which benchmark: tri3.
+    which: String,
+    /// Timed repetitions (median reported).
+    #[arg(long, default_value_t = 5)]
+    reps: usize,
+    /// Samples per seed of the mc3 reference of the error table.
+    #[arg(long, default_value_t = 1 << 19)]
+    reference_spp: u32,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
 }
 
 #[derive(clap::Args)]
@@ -88,6 +106,7 @@ fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Render(args) => render(args),
+        Command::Bench(args) => bench(args),
     };
     if let Err(e) = result {
         eprintln!("error: {e}");
@@ -264,4 +283,68 @@ fn render(args: RenderArgs) -> umbra::Result<()> {
         }
     );
     Ok(())
+}
+
+fn bench(args: BenchArgs) -> umbra::Result<()> {
+    use umbra::bench;
+    if args.which != "tri3" {
+        return Err(umbra::Error::Invalid(format!(
+            "bench: unknown benchmark '{}' (available: tri3)",
+            args.which
+        )));
+    }
+    let mut b = rayon::ThreadPoolBuilder::new();
+    if let Some(t) = args.threads {
+        b = b.num_threads(t.max(1));
+    }
+    let pool = b
+        .build()
+        .map_err(|e| umbra::Error::Invalid(format!("thread pool: {e}")))?;
+    pool.install(|| {
+        let threads = rayon::current_num_threads();
+        let scene = bench::tri3_speed_scene()?;
+        println!("## tri3 forward pass ({threads} threads)\n");
+        println!("Confocal 64 x 64 scan, 512 bins of 4 mm, wavy sheet of {} triangles at 0.8 m, visibility none, box bins.\n", scene.total_hidden_triangles());
+        println!("| subdivision | sub-triangles | setup s | render s (median of {}) | M pairs/s |", args.reps);
+        println!("|---|---|---|---|---|");
+        for s in [umbra::scene::DEFAULT_SUBDIVISION] {
+            let t = bench::tri3_speed(&scene, args.reps, s)?;
+            println!(
+                "| {s} | {} | {:.3} | {:.3} | {:.1} |",
+                t.subtriangles,
+                t.setup_seconds,
+                t.median(),
+                t.mpairs_per_second()
+            );
+        }
+        println!("\n## tri3 error against mc3 as the subdivision threshold falls\n");
+        let thresholds = [4.0, 1.0, 0.5, 0.3, 0.15, 0.08, 0.04];
+        for (name, scene) in bench::error_table_scenes()? {
+            let (noise, rows) = bench::tri3_error_table(&scene, args.reference_spp, &thresholds)?;
+            println!(
+                "{name}, confocal {}x{} scan, {} bins of {} mm; mc3 reference 2 x {} spp, its own noise {:.3} %:\n",
+                scene.scan.nx,
+                scene.scan.ny,
+                scene.film.temporal_bins,
+                scene.film.bin_width_opl * 1000.0,
+                args.reference_spp,
+                100.0 * noise
+            );
+            println!("| subdivision | sub-triangles | render s | rel. L2 vs mc3 | same, reference noise removed |");
+            println!("|---|---|---|---|---|");
+            for r in rows {
+                println!(
+                    "| {}{} | {} | {:.4} | {:.3} % | {:.3} % |",
+                    r.subdivision,
+                    if r.subdivision == umbra::scene::DEFAULT_SUBDIVISION { " (default)" } else { "" },
+                    r.subtriangles,
+                    r.seconds,
+                    100.0 * r.error,
+                    100.0 * r.error_without_noise(noise)
+                );
+            }
+            println!();
+        }
+        Ok(())
+    })
 }

@@ -55,12 +55,18 @@ impl Pulse {
         let ([t0, t1, t2], [w0, w1, w2]) = (t, w);
         let span = t2 - t0;
         let (ka, ga) = if t1 > t0 {
-            (area / 3.0 / ((t1 - t0) * span), (w1 - w0) / (t1 - t0) + (w2 - w0) / span)
+            (
+                area / 3.0 / ((t1 - t0) * span),
+                (w1 - w0) / (t1 - t0) + (w2 - w0) / span,
+            )
         } else {
             (0.0, 0.0)
         };
         let (kb, gb) = if t2 > t1 {
-            (area / 3.0 / ((t2 - t1) * span), (w1 - w2) / (t2 - t1) + (w0 - w2) / span)
+            (
+                area / 3.0 / ((t2 - t1) * span),
+                (w1 - w2) / (t2 - t1) + (w0 - w2) / span,
+            )
         } else {
             (0.0, 0.0)
         };
@@ -167,7 +173,11 @@ impl Film {
                 hist[lo] += p.total;
                 return;
             }
-            let mut prev = if first_bin < 0 { p.cdf_inside(edge(0).max(t0)) } else { 0.0 };
+            let mut prev = if first_bin < 0 {
+                p.cdf_inside(edge(0).max(t0))
+            } else {
+                0.0
+            };
             // Bins before the pulse's last one end inside it; the last one takes the rest.
             let inner_end = (last_bin as usize).min(hi + 1);
             for b in lo..inner_end {

@@ -79,12 +79,11 @@ impl Tri3Mesh {
         let mut m = Tri3Mesh::default();
         let mut shared: HashMap<(u32, [u32; 3], u32), u32> = HashMap::new();
         for (flat, t) in geom.hidden.iter().enumerate() {
-            let r = t
-                .v
-                .iter()
-                .map(|&v| scene.wall.height_above(v))
-                .fold(f32::INFINITY, f32::min)
-                .max(1e-4);
+            let r =
+                t.v.iter()
+                    .map(|&v| scene.wall.height_above(v))
+                    .fold(f32::INFINITY, f32::min)
+                    .max(1e-4);
             let edge = (t.v[1] - t.v[0])
                 .length()
                 .max((t.v[2] - t.v[1]).length())
@@ -254,8 +253,16 @@ pub fn render_measurement(
             let tau_c = (x_l - c).length() + (x_s - c).length() + legs;
             let shift = 0.75 * (tau_c - (t[0] + t[1] + t[2]) / 3.0);
             film.splat_triangle(
-                [(t[0] + shift) as f64, (t[1] + shift) as f64, (t[2] + shift) as f64],
-                [w[0] as f64 * scale, w[1] as f64 * scale, w[2] as f64 * scale],
+                [
+                    (t[0] + shift) as f64,
+                    (t[1] + shift) as f64,
+                    (t[2] + shift) as f64,
+                ],
+                [
+                    w[0] as f64 * scale,
+                    w[1] as f64 * scale,
+                    w[2] as f64 * scale,
+                ],
                 mesh.area[k] as f64,
                 hist,
             );

@@ -1,0 +1,192 @@
+//! `umbra bench`: built-in benchmarks that print the figures BENCHMARKS.md quotes.
+//!
+//! - [`tri3_speed`]: the `tri3` forward pass on a confocal 64 x 64 scan, 512 bins, a
+//!   10k-triangle mesh, no visibility (the issue's reference case): render time (median
+//!   over repetitions, setup excluded) and pairs per second.
+//! - [`tri3_error_table`]: `tri3`'s relative L2 error against a converged `mc3` reference
+//!   as the subdivision threshold falls, with the cost of each setting.
+
+use crate::error::Result;
+use crate::geometry::mesh::TriMesh;
+use crate::geometry::shapes::{icosphere, wavy_sheet};
+use crate::geometry::SceneGeometry;
+use crate::scene::{default::DEFAULT_TOML, toml_format, Model, Scene, Visibility};
+use crate::transport::{RenderOptions, Renderer, Transient};
+use glam::Vec3;
+use std::path::Path;
+use std::time::Instant;
+
+/// A confocal scene around one procedural mesh.
+pub fn mesh_scene(
+    mesh: TriMesh,
+    scan: u32,
+    bins: u32,
+    bin_width: f32,
+    start: f32,
+) -> Result<Scene> {
+    let toml = format!(
+        r#"
+capture_type = "confocal"
+[wall]
+size = [2.0, 2.0]
+albedo = 0.8
+[laser]
+origin = [0.3, -0.4, 1.0]
+power = 1.0
+[scan]
+resolution = [{scan}, {scan}]
+size = [1.6, 1.6]
+[film]
+temporal_bins = {bins}
+bin_width_opl = {bin_width}
+start_opl = {start}
+[[objects]]
+file = "mesh"
+albedo = 0.7
+[render]
+visibility = "none"
+"#
+    );
+    toml_format::parse(&toml, Path::new("<bench scene>"), &|_| Ok(mesh.clone()))
+}
+
+/// The issue's reference case: a wavy sheet of 10 082 triangles at 0.8 m.
+pub fn tri3_speed_scene() -> Result<Scene> {
+    let sheet = wavy_sheet(Vec3::new(0.0, 0.1, 0.8), 0.6, 71, 0.02, 0.3);
+    mesh_scene(sheet, 64, 512, 0.004, 1.5)
+}
+
+/// Result of a timing run.
+pub struct Timing {
+    pub measurements: usize,
+    pub subtriangles: usize,
+    pub setup_seconds: f64,
+    /// Render seconds of each repetition.
+    pub seconds: Vec<f64>,
+}
+
+impl Timing {
+    pub fn median(&self) -> f64 {
+        let mut s = self.seconds.clone();
+        s.sort_by(f64::total_cmp);
+        s[s.len() / 2]
+    }
+    pub fn mpairs_per_second(&self) -> f64 {
+        (self.measurements * self.subtriangles) as f64 / self.median() / 1e6
+    }
+}
+
+/// Times `tri3` on `scene` (`reps` renders after one warm-up).
+pub fn tri3_speed(scene: &Scene, reps: usize, subdivision: f32) -> Result<Timing> {
+    let t0 = Instant::now();
+    let geom = SceneGeometry::build(scene);
+    let opts = RenderOptions {
+        model: Model::Tri3,
+        visibility: Visibility::None,
+        subdivision,
+        ..RenderOptions::from_scene(scene)
+    };
+    let r = Renderer::new(scene, &geom, &opts)?;
+    let setup_seconds = t0.elapsed().as_secs_f64();
+    r.render(None)?;
+    let mut seconds = Vec::with_capacity(reps);
+    for _ in 0..reps.max(1) {
+        let t = Instant::now();
+        std::hint::black_box(r.render(None)?);
+        seconds.push(t.elapsed().as_secs_f64());
+    }
+    Ok(Timing {
+        measurements: scene.num_measurements(),
+        subtriangles: r.subtriangles(),
+        setup_seconds,
+        seconds,
+    })
+}
+
+/// One row of the error-vs-threshold table.
+pub struct ErrorRow {
+    pub subdivision: f32,
+    pub subtriangles: usize,
+    pub seconds: f64,
+    /// Relative L2 difference from the mc3 reference.
+    pub error: f64,
+}
+
+impl ErrorRow {
+    /// The error with the reference's own noise removed in quadrature (the two are
+    /// independent): an estimate of tri3's distance from the exact transient.
+    pub fn error_without_noise(&self, noise: f64) -> f64 {
+        (self.error * self.error - noise * noise).max(0.0).sqrt()
+    }
+}
+
+/// `tri3` against an `mc3` reference (two seeds of `spp` samples) on `scene`, for each
+/// threshold; returns the reference's own relative noise and the rows.
+pub fn tri3_error_table(
+    scene: &Scene,
+    spp: u32,
+    thresholds: &[f32],
+) -> Result<(f64, Vec<ErrorRow>)> {
+    let geom = SceneGeometry::build(scene);
+    let run = |model, seed, subdivision| -> Result<(Transient, f64, usize)> {
+        let opts = RenderOptions {
+            model,
+            spp,
+            seed,
+            subdivision,
+            visibility: Visibility::None,
+            ..RenderOptions::from_scene(scene)
+        };
+        let r = Renderer::new(scene, &geom, &opts)?;
+        let t = Instant::now();
+        let out = r.render(None)?;
+        Ok((out, t.elapsed().as_secs_f64(), r.subtriangles()))
+    };
+    let (a, _, _) = run(Model::Mc3, 11, 1.0)?;
+    let (b, _, _) = run(Model::Mc3, 12, 1.0)?;
+    let reference: Vec<f32> = a
+        .data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| 0.5 * (x + y))
+        .collect();
+    let noise = rel_l2(&a.data, &b.data) / 2.0;
+    let mut rows = Vec::new();
+    for &s in thresholds {
+        let (t, seconds, subtriangles) = run(Model::Tri3, 0, s)?;
+        rows.push(ErrorRow {
+            subdivision: s,
+            subtriangles,
+            seconds,
+            error: rel_l2(&t.data, &reference),
+        });
+    }
+    Ok((noise, rows))
+}
+
+/// The scenes of the error table: the built-in letter T (large flat triangles, 8 x 8
+/// scan) and a sphere of 1280 triangles.
+pub fn error_table_scenes() -> Result<Vec<(&'static str, Scene)>> {
+    let mut letter = crate::scene::default::default_scene()?;
+    letter.scan.nx = 8;
+    letter.scan.ny = 8;
+    debug_assert!(DEFAULT_TOML.contains("letter_t"));
+    let sphere = mesh_scene(
+        icosphere(Vec3::new(0.1, 0.0, 0.9), 0.2, 3),
+        8,
+        160,
+        0.01,
+        1.3,
+    )?;
+    Ok(vec![
+        ("letter T (default scene, 72 triangles)", letter),
+        ("sphere (1280 triangles)", sphere),
+    ])
+}
+
+/// Relative L2 difference `‖a − b‖ / ‖b‖`.
+pub fn rel_l2(a: &[f32], b: &[f32]) -> f64 {
+    let d: f64 = a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum();
+    let n: f64 = b.iter().map(|y| (*y as f64).powi(2)).sum();
+    (d / n).sqrt()
+}

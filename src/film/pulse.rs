@@ -180,9 +180,9 @@ impl Film {
             };
             // Bins before the pulse's last one end inside it; the last one takes the rest.
             let inner_end = (last_bin as usize).min(hi + 1);
-            for b in lo..inner_end {
-                let next = p.cdf_inside(edge(b + 1).min(t2));
-                hist[b] += next - prev;
+            for (b, h) in hist[lo..inner_end.max(lo)].iter_mut().enumerate() {
+                let next = p.cdf_inside(edge(lo + b + 1).min(t2));
+                *h += next - prev;
                 prev = next;
             }
             if last_bin as usize <= hi {

@@ -8,6 +8,7 @@ in these variants:
   3b-bsdf  three-bounce only, BSDF sampling              (Umbra --model path, BSDF only)
   3b-mis   three-bounce only, mitransient HGS            (Umbra --model path, its MIS of
            BSDF and hidden-geometry sampling)
+  3b-tri3  three-bounce only, mitransient HGS            (Umbra --model tri3, deterministic)
   mb-hgs   up to 6 bounces, HGS without the relay wall   (Umbra --model path): path space
            WITHOUT relay-wall vertices between x_s and x_l (mitransient's HGS never samples
            the wall)
@@ -63,6 +64,8 @@ VARIANTS = {
     "3b-hgs": (dict(max_depth=3, filter_bounces=2, hgs="true", hgs_wall="false"), "mc3", 2048, 2048, []),
     "3b-bsdf": (dict(max_depth=3, filter_bounces=2, hgs="false", hgs_wall="false"), "path", 16384, 16384, []),
     "3b-mis": (dict(max_depth=3, filter_bounces=2, hgs="true", hgs_wall="false"), "path", 2048, 2048, MIS),
+    # Umbra's deterministic per-triangle model (no noise: its "variance" is 0).
+    "3b-tri3": (dict(max_depth=3, filter_bounces=2, hgs="true", hgs_wall="false"), "tri3", 2048, 1, []),
     "mb-hgs": (dict(max_depth=6, filter_bounces=-1, hgs="true", hgs_wall="false"), "path", 2048, 2048, []),
     "mb-hgs-wall": (dict(max_depth=6, filter_bounces=-1, hgs="true", hgs_wall="true"), "path", 4096, 2048, []),
     "mb-bsdf": (dict(max_depth=6, filter_bounces=-1, hgs="false", hgs_wall="false"), "path", 16384, 4096, []),
@@ -71,8 +74,8 @@ VARIANTS = {
     "mb-mis": (dict(max_depth=6, filter_bounces=-1, hgs="false", hgs_wall="false"), "path", 16384, 2048, MIS),
 }
 SCENE_VARIANTS = {
-    "T": ["3b-hgs", "3b-bsdf", "3b-mis", "mb-hgs", "mb-bsdf", "mb-mis"],
-    "arc": ["3b-hgs", "3b-bsdf", "3b-mis", "mb-hgs", "mb-bsdf", "mb-mis"],
+    "T": ["3b-hgs", "3b-bsdf", "3b-mis", "3b-tri3", "mb-hgs", "mb-bsdf", "mb-mis"],
+    "arc": ["3b-hgs", "3b-bsdf", "3b-mis", "3b-tri3", "mb-hgs", "mb-bsdf", "mb-mis"],
     "near": ["3b-hgs", "mb-hgs", "mb-hgs-wall", "mb-bsdf", "mb-mis"],
 }
 CAPTURES = ["single", "confocal"]

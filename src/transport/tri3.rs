@@ -158,16 +158,23 @@ impl Tri3Mesh {
     }
 }
 
-/// Reusable per-thread buffers, per vertex for the current measurement.
+/// What a measurement needs of a vertex, in one record (one cache access per corner).
+#[derive(Clone, Copy, Debug, Default)]
+struct VertexTerm {
+    /// Unit directions to the laser spot and to the sensor point.
+    to_l: Vec3,
+    to_s: Vec3,
+    /// OPL (m).
+    opl: f32,
+    /// `(ρ/π) cos θ_wall,l cos θ_wall,s / (r_l² r_s²)`, 0 behind the wall's front.
+    base: f32,
+}
+
+/// Reusable per-thread buffers.
 #[derive(Default)]
 pub struct Tri3Scratch {
-    /// OPL (m).
-    opl: Vec<f32>,
-    /// Unit directions to the laser spot and to the sensor point.
-    to_l: Vec<Vec3>,
-    to_s: Vec<Vec3>,
-    /// `(ρ/π) cos θ_wall,l cos θ_wall,s / (r_l² r_s²)`, 0 behind the wall's front.
-    base: Vec<f32>,
+    /// Per vertex, for the current measurement.
+    vertex: Vec<VertexTerm>,
     /// Per original triangle: visible from both wall points (centroid visibility).
     visible: Vec<bool>,
 }
@@ -183,28 +190,25 @@ pub fn render_measurement(
 ) {
     let (x_l, x_s, n_w) = (ctx.x_l, ctx.x_s, ctx.n_w);
     let legs = ctx.opl_laser_leg(x_l) + ctx.opl_sensor_leg;
-    let nv = mesh.vertices.len();
-    scratch.opl.resize(nv, 0.0);
-    scratch.to_l.resize(nv, Vec3::ZERO);
-    scratch.to_s.resize(nv, Vec3::ZERO);
-    scratch.base.resize(nv, 0.0);
-    for k in 0..nv {
-        let v = mesh.vertices[k];
+    scratch.vertex.clear();
+    scratch.vertex.extend(mesh.vertices.iter().zip(&mesh.vertex_brdf).map(|(&v, &brdf)| {
         let (dl, ds) = (x_l - v, x_s - v);
         let (rl2, rs2) = (dl.length_squared(), ds.length_squared());
         let (inv_rl, inv_rs) = (rl2.sqrt().recip(), rs2.sqrt().recip());
-        let (ul, us) = (dl * inv_rl, ds * inv_rs);
-        scratch.opl[k] = rl2 * inv_rl + rs2 * inv_rs + legs;
-        scratch.to_l[k] = ul;
-        scratch.to_s[k] = us;
-        let (cos_wl, cos_ws) = (-n_w.dot(ul), -n_w.dot(us));
+        let (to_l, to_s) = (dl * inv_rl, ds * inv_rs);
+        let (cos_wl, cos_ws) = (-n_w.dot(to_l), -n_w.dot(to_s));
         let front = cos_wl > 0.0 && cos_ws > 0.0;
-        scratch.base[k] = if front {
-            mesh.vertex_brdf[k] * cos_wl * cos_ws / (rl2 * rs2)
-        } else {
-            0.0
-        };
-    }
+        VertexTerm {
+            to_l,
+            to_s,
+            opl: rl2 * inv_rl + rs2 * inv_rs + legs,
+            base: if front {
+                brdf * cos_wl * cos_ws / (rl2 * rs2)
+            } else {
+                0.0
+            },
+        }
+    }));
     if visibility == Visibility::Centroid {
         scratch.visible.clear();
         scratch.visible.extend(
@@ -217,25 +221,29 @@ pub fn render_measurement(
     for (k, tri) in mesh.tris.iter().enumerate() {
         let n = mesh.normal[k];
         let two_sided = mesh.two_sided[k];
-        let [i0, i1, i2] = [tri[0] as usize, tri[1] as usize, tri[2] as usize];
-        let corner = |i: usize| {
-            let (cl, cs) = (n.dot(scratch.to_l[i]), n.dot(scratch.to_s[i]));
+        let corners = [
+            scratch.vertex[tri[0] as usize],
+            scratch.vertex[tri[1] as usize],
+            scratch.vertex[tri[2] as usize],
+        ];
+        let corner = |v: &VertexTerm| {
+            let (cl, cs) = (n.dot(v.to_l), n.dot(v.to_s));
             let facing = if two_sided {
                 cl * cs > 0.0
             } else {
                 cl > 0.0 && cs > 0.0
             };
             if facing {
-                scratch.base[i] * (cl * cs).abs()
+                v.base * (cl * cs).abs()
             } else {
                 0.0
             }
         };
-        let w = [corner(i0), corner(i1), corner(i2)];
+        let w = [corner(&corners[0]), corner(&corners[1]), corner(&corners[2])];
         if w[0] <= 0.0 && w[1] <= 0.0 && w[2] <= 0.0 {
             continue;
         }
-        let t = [scratch.opl[i0], scratch.opl[i1], scratch.opl[i2]];
+        let t = [corners[0].opl, corners[1].opl, corners[2].opl];
         let t_min = t[0].min(t[1]).min(t[2]);
         let t_max = t[0].max(t[1]).max(t[2]);
         if t_max < ctx.opl_min || t_min >= ctx.opl_max {

@@ -191,24 +191,29 @@ pub fn render_measurement(
     let (x_l, x_s, n_w) = (ctx.x_l, ctx.x_s, ctx.n_w);
     let legs = ctx.opl_laser_leg(x_l) + ctx.opl_sensor_leg;
     scratch.vertex.clear();
-    scratch.vertex.extend(mesh.vertices.iter().zip(&mesh.vertex_brdf).map(|(&v, &brdf)| {
-        let (dl, ds) = (x_l - v, x_s - v);
-        let (rl2, rs2) = (dl.length_squared(), ds.length_squared());
-        let (inv_rl, inv_rs) = (rl2.sqrt().recip(), rs2.sqrt().recip());
-        let (to_l, to_s) = (dl * inv_rl, ds * inv_rs);
-        let (cos_wl, cos_ws) = (-n_w.dot(to_l), -n_w.dot(to_s));
-        let front = cos_wl > 0.0 && cos_ws > 0.0;
-        VertexTerm {
-            to_l,
-            to_s,
-            opl: rl2 * inv_rl + rs2 * inv_rs + legs,
-            base: if front {
-                brdf * cos_wl * cos_ws / (rl2 * rs2)
-            } else {
-                0.0
-            },
-        }
-    }));
+    scratch.vertex.extend(
+        mesh.vertices
+            .iter()
+            .zip(&mesh.vertex_brdf)
+            .map(|(&v, &brdf)| {
+                let (dl, ds) = (x_l - v, x_s - v);
+                let (rl2, rs2) = (dl.length_squared(), ds.length_squared());
+                let (inv_rl, inv_rs) = (rl2.sqrt().recip(), rs2.sqrt().recip());
+                let (to_l, to_s) = (dl * inv_rl, ds * inv_rs);
+                let (cos_wl, cos_ws) = (-n_w.dot(to_l), -n_w.dot(to_s));
+                let front = cos_wl > 0.0 && cos_ws > 0.0;
+                VertexTerm {
+                    to_l,
+                    to_s,
+                    opl: rl2 * inv_rl + rs2 * inv_rs + legs,
+                    base: if front {
+                        brdf * cos_wl * cos_ws / (rl2 * rs2)
+                    } else {
+                        0.0
+                    },
+                }
+            }),
+    );
     if visibility == Visibility::Centroid {
         scratch.visible.clear();
         scratch.visible.extend(
@@ -239,7 +244,11 @@ pub fn render_measurement(
                 0.0
             }
         };
-        let w = [corner(&corners[0]), corner(&corners[1]), corner(&corners[2])];
+        let w = [
+            corner(&corners[0]),
+            corner(&corners[1]),
+            corner(&corners[2]),
+        ];
         if w[0] <= 0.0 && w[1] <= 0.0 && w[2] <= 0.0 {
             continue;
         }

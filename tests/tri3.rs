@@ -11,6 +11,7 @@ use glam::Vec3;
 use umbra::geometry::mesh::TriMesh;
 use umbra::geometry::shapes::{icosphere, wavy_sheet};
 use umbra::scene::{Model, Scene, Visibility};
+use umbra::bench::rel_l2;
 use umbra::transport::{RenderOptions, Renderer, Transient};
 
 pub fn obj_text(m: &TriMesh) -> String {
@@ -63,11 +64,6 @@ fn render_with(s: &Scene, model: Model, spp: u32, seed: u64, visibility: Visibil
         .unwrap()
 }
 
-fn rel_l2(a: &[f32], b: &[f32]) -> f64 {
-    let d: f64 = a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum();
-    let n: f64 = b.iter().map(|y| (*y as f64).powi(2)).sum();
-    (d / n).sqrt()
-}
 
 /// (tri3 vs mc3 relative L2, mc3 noise) for a scene.
 fn compare(s: &Scene, spp: u32, visibility: Visibility) -> (f64, f64) {

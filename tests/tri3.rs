@@ -8,10 +8,10 @@
 mod common;
 use common::*;
 use glam::Vec3;
+use umbra::bench::rel_l2;
 use umbra::geometry::mesh::TriMesh;
 use umbra::geometry::shapes::{icosphere, wavy_sheet};
 use umbra::scene::{Model, Scene, Visibility};
-use umbra::bench::rel_l2;
 use umbra::transport::{RenderOptions, Renderer, Transient};
 
 pub fn obj_text(m: &TriMesh) -> String {
@@ -63,7 +63,6 @@ fn render_with(s: &Scene, model: Model, spp: u32, seed: u64, visibility: Visibil
         .render(None)
         .unwrap()
 }
-
 
 /// (tri3 vs mc3 relative L2, mc3 noise) for a scene.
 fn compare(s: &Scene, spp: u32, visibility: Visibility) -> (f64, f64) {

@@ -1,5 +1,5 @@
 //! Helpers shared by the integration tests: scenes from inline TOML and OBJ text,
-//! renders, and Monte Carlo statistics over independent seeds.
+//! renders, and the total energy's mean and standard error over independent seeds.
 #![allow(dead_code)]
 
 use std::path::Path;
@@ -61,46 +61,6 @@ pub fn totals(t: &Transient) -> Vec<f64> {
         .chunks(t.bins())
         .map(|c| c.iter().map(|&v| v as f64).sum())
         .collect()
-}
-
-/// Mean transient over `seeds` renders and the standard error of each element.
-pub struct Estimate {
-    pub mean: Vec<f64>,
-    pub stderr: Vec<f64>,
-    pub bins: usize,
-}
-
-pub fn estimate(scene: &Scene, model: Model, spp: u32, seeds: u64) -> Estimate {
-    let runs: Vec<Transient> = (0..seeds)
-        .map(|s| render(scene, model, spp, 1000 + s))
-        .collect();
-    let n = runs[0].data.len();
-    let k = seeds as f64;
-    let mut mean = vec![0.0; n];
-    let mut sq = vec![0.0; n];
-    for r in &runs {
-        for (i, &v) in r.data.iter().enumerate() {
-            mean[i] += v as f64 / k;
-            sq[i] += (v as f64) * (v as f64) / k;
-        }
-    }
-    let stderr = mean
-        .iter()
-        .zip(&sq)
-        .map(|(m, s)| ((s - m * m).max(0.0) * k / (k - 1.0) / k).sqrt())
-        .collect();
-    Estimate {
-        mean,
-        stderr,
-        bins: runs[0].bins(),
-    }
-}
-
-impl Estimate {
-    /// Total energy and its standard error (from per-seed totals).
-    pub fn total(&self) -> f64 {
-        self.mean.iter().sum()
-    }
 }
 
 /// Total energy over seeds: (mean, standard error of the mean).

@@ -93,3 +93,33 @@ fn cli_output_is_independent_of_threads() {
         io::read_npy(&b).unwrap().data
     );
 }
+
+#[test]
+fn cli_auto_says_what_it_chose_and_tri3_runs() {
+    let out = umbra(&[
+        "render",
+        "-o",
+        tmp("auto.npy").to_str().unwrap(),
+        "--model",
+        "auto",
+        "-q",
+        "--no-preview",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("auto: chose tri3"), "{err}");
+    assert!(String::from_utf8_lossy(&out.stdout).contains("(tri3,"));
+    let bad = Command::new(env!("CARGO_BIN_EXE_umbra"))
+        .args([
+            "render",
+            "--model",
+            "tri3",
+            "--visibility",
+            "sometimes",
+            "-o",
+            "/tmp/x.npy",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("--visibility"));
+}

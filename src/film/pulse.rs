@@ -53,19 +53,24 @@ impl Pulse {
         swap(1, 2);
         swap(0, 1);
         let ([t0, t1, t2], [w0, w1, w2]) = (t, w);
-        let span = t2 - t0;
+        // Three reciprocals serve all four constants (a pulse narrower than NARROW
+        // never gets here with t2 == t0).
+        let inv_span = 1.0 / (t2 - t0);
+        let third_area = area / 3.0;
         let (ka, ga) = if t1 > t0 {
+            let inv = 1.0 / (t1 - t0);
             (
-                area / 3.0 / ((t1 - t0) * span),
-                (w1 - w0) / (t1 - t0) + (w2 - w0) / span,
+                third_area * inv * inv_span,
+                (w1 - w0) * inv + (w2 - w0) * inv_span,
             )
         } else {
             (0.0, 0.0)
         };
         let (kb, gb) = if t2 > t1 {
+            let inv = 1.0 / (t2 - t1);
             (
-                area / 3.0 / ((t2 - t1) * span),
-                (w1 - w2) / (t2 - t1) + (w0 - w2) / span,
+                third_area * inv * inv_span,
+                (w1 - w2) * inv + (w0 - w2) * inv_span,
             )
         } else {
             (0.0, 0.0)
@@ -180,8 +185,10 @@ impl Film {
             };
             // Bins before the pulse's last one end inside it; the last one takes the rest.
             let inner_end = (last_bin as usize).min(hi + 1);
-            for (b, h) in hist[lo..inner_end.max(lo)].iter_mut().enumerate() {
-                let next = p.cdf_inside(edge(lo + b + 1).min(t2));
+            let mut x = edge(lo);
+            for h in hist[lo..inner_end.max(lo)].iter_mut() {
+                x += self.width;
+                let next = p.cdf_inside(x.min(t2));
                 *h += next - prev;
                 prev = next;
             }

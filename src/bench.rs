@@ -10,7 +10,7 @@ use crate::error::Result;
 use crate::geometry::mesh::TriMesh;
 use crate::geometry::shapes::{icosphere, wavy_sheet};
 use crate::geometry::SceneGeometry;
-use crate::scene::{default::DEFAULT_TOML, toml_format, Model, Scene, Visibility};
+use crate::scene::{toml_format, Model, Scene, Visibility};
 use crate::transport::{RenderOptions, Renderer, Transient};
 use glam::Vec3;
 use std::path::Path;
@@ -170,7 +170,6 @@ pub fn error_table_scenes() -> Result<Vec<(&'static str, Scene)>> {
     let mut letter = crate::scene::default::default_scene()?;
     letter.scan.nx = 8;
     letter.scan.ny = 8;
-    debug_assert!(DEFAULT_TOML.contains("letter_t"));
     let sphere = mesh_scene(
         icosphere(Vec3::new(0.1, 0.0, 0.9), 0.2, 3),
         8,

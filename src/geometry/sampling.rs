@@ -112,12 +112,6 @@ impl AreaDistribution {
             pdf_area: self.pdf_area(),
         }
     }
-
-    /// Probability of picking position `k` along the sampling order.
-    pub fn probability_at(&self, k: usize) -> f32 {
-        let lo = if k == 0 { 0.0 } else { self.cdf[k - 1] };
-        self.cdf[k] - lo
-    }
 }
 
 /// Spreads the low 10 bits of `x` to every third bit (for 3-D Morton codes).

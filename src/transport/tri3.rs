@@ -140,11 +140,14 @@ impl Tri3Mesh {
         let vid = |i: u32, j: u32| grid[row(j) + i as usize];
         for j in 0..n {
             for i in 0..(n - j) {
-                let mut tris = vec![[vid(i, j), vid(i + 1, j), vid(i, j + 1)]];
-                if i + j + 1 < n {
-                    tris.push([vid(i + 1, j), vid(i + 1, j + 1), vid(i, j + 1)]);
-                }
-                for tri in tris {
+                let up = [vid(i, j), vid(i + 1, j), vid(i, j + 1)];
+                // The "down" triangle exists only inside the grid's diagonal.
+                let tris = if i + j + 1 < n {
+                    &[up, [vid(i + 1, j), vid(i + 1, j + 1), vid(i, j + 1)]][..]
+                } else {
+                    &[up][..]
+                };
+                for &tri in tris {
                     let [pa, pb, pc] = tri.map(|k| self.vertices[k as usize]);
                     self.tris.push(tri);
                     self.normal.push(t.n);

@@ -14,7 +14,10 @@
 
 use crate::scene::{FilmSpec, KernelSpec};
 
+mod box_pulse;
 mod pulse;
+
+pub use box_pulse::{splat_lanes, BoxPulse, LANES};
 
 /// Half-width of the evaluated Gaussian support, in σ.
 pub const GAUSS_CUTOFF: f64 = 6.5;

@@ -142,20 +142,16 @@ impl<'a> Renderer<'a> {
                         return;
                     }
                     let ctx = MeasurementCtx::new(self.scene, self.geom, &self.film, m);
-                    let hist = match &self.tri3 {
-                        Some(mesh) => {
-                            let mut hist = vec![0.0f64; bins];
-                            let v = self.opts.visibility;
-                            tri3::render_measurement(mesh, &ctx, &self.film, v, scratch, &mut hist);
-                            if let Some(p) = progress {
-                                p.work_done.fetch_add(mesh.len() as u64, Ordering::Relaxed);
-                            }
-                            hist
+                    if let Some(mesh) = &self.tri3 {
+                        let v = self.opts.visibility;
+                        tri3::render_measurement(mesh, &ctx, &self.film, v, scratch, out);
+                        if let Some(p) = progress {
+                            p.work_done.fetch_add(mesh.len() as u64, Ordering::Relaxed);
                         }
-                        None => match self.monte_carlo(&ctx, m, progress, &stop) {
-                            Some(h) => h,
-                            None => return,
-                        },
+                        return;
+                    }
+                    let Some(hist) = self.monte_carlo(&ctx, m, progress, &stop) else {
+                        return;
                     };
                     for (o, a) in out.iter_mut().zip(hist) {
                         *o = a as f32;

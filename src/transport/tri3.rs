@@ -32,8 +32,9 @@
 //! Gaussian kernels, a point laser spot. Does not: interreflections, a finite laser spot
 //! (treated as its centre), partial occlusion within a (sub-)triangle.
 
+use super::tri3_kernel::{self, PulseBlock, TriBlock, W};
 use super::MeasurementCtx;
-use crate::film::Film;
+use crate::film::{splat_lanes, Film};
 use crate::geometry::{HiddenTri, SceneGeometry};
 use crate::scene::{KernelSpec, Scene, Visibility};
 use glam::Vec3;
@@ -56,6 +57,8 @@ pub struct Tri3Mesh {
     pub tris: Vec<[u32; 3]>,
     /// Per sub-triangle: unit normal (its original triangle's).
     pub normal: Vec<Vec3>,
+    /// Per sub-triangle: its plane's offset `n · v` (m).
+    pub plane: Vec<f32>,
     /// Per sub-triangle: reflects on both sides.
     pub two_sided: Vec<bool>,
     /// Per sub-triangle: area (m²).
@@ -66,6 +69,8 @@ pub struct Tri3Mesh {
     pub parent: Vec<u32>,
     /// Per original triangle: its centroid (for `centroid` visibility).
     pub parent_centroid: Vec<Vec3>,
+    /// The sub-triangles packed for the inner loop.
+    pub blocks: Vec<TriBlock>,
 }
 
 impl Tri3Mesh {
@@ -97,6 +102,13 @@ impl Tri3Mesh {
             let object = geom.flat_to_local[flat].0;
             m.push_subdivided(flat as u32, object, t, level, &mut shared);
         }
+        let corners = m.tris.iter().map(|tri| {
+            (
+                tri.map(|i| m.vertices[i as usize]),
+                tri.map(|i| m.vertex_brdf[i as usize]),
+            )
+        });
+        m.blocks = tri3_kernel::pack(corners, &m.normal, &m.plane, &m.area, &m.two_sided);
         m
     }
 
@@ -151,6 +163,7 @@ impl Tri3Mesh {
                     let [pa, pb, pc] = tri.map(|k| self.vertices[k as usize]);
                     self.tris.push(tri);
                     self.normal.push(t.n);
+                    self.plane.push(t.n.dot((pa + pb + pc) / 3.0));
                     self.two_sided.push(t.two_sided);
                     self.area.push(0.5 * (pb - pa).cross(pc - pa).length());
                     self.centroid.push((pa + pb + pc) / 3.0);
@@ -161,62 +174,28 @@ impl Tri3Mesh {
     }
 }
 
-/// What a measurement needs of a vertex, in one record (one cache access per corner).
-#[derive(Clone, Copy, Debug, Default)]
-struct VertexTerm {
-    /// Unit directions to the laser spot and to the sensor point.
-    to_l: Vec3,
-    to_s: Vec3,
-    /// OPL (m).
-    opl: f32,
-    /// `(ρ/π) cos θ_wall,l cos θ_wall,s / (r_l² r_s²)`, 0 behind the wall's front.
-    base: f32,
-}
-
-/// Reusable per-thread buffers.
+/// Reusable per-thread buffers: no allocation per measurement once warm.
 #[derive(Default)]
 pub struct Tri3Scratch {
-    /// Per vertex, for the current measurement.
-    vertex: Vec<VertexTerm>,
     /// Per original triangle: visible from both wall points (centroid visibility).
     visible: Vec<bool>,
+    /// Box kernel: the measurement's bins and a scratch slot.
+    hist32: Vec<f32>,
+    /// Gaussian kernel: the measurement's bins.
+    hist64: Vec<f64>,
 }
 
-/// Adds the three-bounce transient of one measurement to `hist`.
+/// Adds the three-bounce transient of one measurement to `out` (its `bins` values).
+/// The per-triangle arithmetic is in [`tri3_kernel`], eight triangles at a time.
 pub fn render_measurement(
     mesh: &Tri3Mesh,
     ctx: &MeasurementCtx,
     film: &Film,
     visibility: Visibility,
     scratch: &mut Tri3Scratch,
-    hist: &mut [f64],
+    out: &mut [f32],
 ) {
-    let (x_l, x_s, n_w) = (ctx.x_l, ctx.x_s, ctx.n_w);
-    let legs = ctx.opl_laser_leg(x_l) + ctx.opl_sensor_leg;
-    scratch.vertex.clear();
-    scratch.vertex.extend(
-        mesh.vertices
-            .iter()
-            .zip(&mesh.vertex_brdf)
-            .map(|(&v, &brdf)| {
-                let (dl, ds) = (x_l - v, x_s - v);
-                let (rl2, rs2) = (dl.length_squared(), ds.length_squared());
-                let (inv_rl, inv_rs) = (rl2.sqrt().recip(), rs2.sqrt().recip());
-                let (to_l, to_s) = (dl * inv_rl, ds * inv_rs);
-                let (cos_wl, cos_ws) = (-n_w.dot(to_l), -n_w.dot(to_s));
-                let front = cos_wl > 0.0 && cos_ws > 0.0;
-                VertexTerm {
-                    to_l,
-                    to_s,
-                    opl: rl2 * inv_rl + rs2 * inv_rs + legs,
-                    base: if front {
-                        brdf * cos_wl * cos_ws / (rl2 * rs2)
-                    } else {
-                        0.0
-                    },
-                }
-            }),
-    );
+    let (x_l, x_s) = (ctx.x_l, ctx.x_s);
     if visibility == Visibility::Centroid {
         scratch.visible.clear();
         scratch.visible.extend(
@@ -225,67 +204,58 @@ pub fn render_measurement(
                 .map(|&c| !ctx.geom.occluded(c, x_l) && !ctx.geom.occluded(c, x_s)),
         );
     }
-    let scale = (ctx.power * ctx.f_wall * ctx.f_wall) as f64;
-    for (k, tri) in mesh.tris.iter().enumerate() {
-        let n = mesh.normal[k];
-        let two_sided = mesh.two_sided[k];
-        let corners = [
-            scratch.vertex[tri[0] as usize],
-            scratch.vertex[tri[1] as usize],
-            scratch.vertex[tri[2] as usize],
-        ];
-        let corner = |v: &VertexTerm| {
-            let (cl, cs) = (n.dot(v.to_l), n.dot(v.to_s));
-            let facing = if two_sided {
-                cl * cs > 0.0
-            } else {
-                cl > 0.0 && cs > 0.0
-            };
-            if facing {
-                v.base * (cl * cs).abs()
-            } else {
-                0.0
+    let bins = film.bins;
+    let gaussian = matches!(film.kernel, KernelSpec::Gaussian { .. });
+    if gaussian {
+        scratch.hist64.clear();
+        scratch.hist64.resize(bins, 0.0);
+    } else {
+        scratch.hist32.clear();
+        scratch.hist32.resize(bins + 1, 0.0);
+    }
+    let frame = tri3_kernel::frame(ctx, film);
+    let confocal = frame.confocal();
+    let mut pulses = PulseBlock::default();
+    for (b, block) in mesh.blocks.iter().enumerate() {
+        if confocal {
+            block.pulses::<true>(&frame, &mut pulses);
+        } else {
+            block.pulses::<false>(&frame, &mut pulses);
+        }
+        if visibility != Visibility::None {
+            for j in 0..W {
+                if pulses.live[j] {
+                    let k = b * W + j;
+                    pulses.live[j] = match visibility {
+                        Visibility::None => true,
+                        Visibility::Centroid => scratch.visible[mesh.parent[k] as usize],
+                        Visibility::Subtriangle => {
+                            let c = mesh.centroid[k];
+                            !ctx.geom.occluded(c, x_l) && !ctx.geom.occluded(c, x_s)
+                        }
+                    };
+                }
             }
-        };
-        let w = [
-            corner(&corners[0]),
-            corner(&corners[1]),
-            corner(&corners[2]),
-        ];
-        if w[0] <= 0.0 && w[1] <= 0.0 && w[2] <= 0.0 {
-            continue;
         }
-        let t = [corners[0].opl, corners[1].opl, corners[2].opl];
-        let t_min = t[0].min(t[1]).min(t[2]);
-        let t_max = t[0].max(t[1]).max(t[2]);
-        if t_max < ctx.opl_min || t_min >= ctx.opl_max {
-            continue;
+        if gaussian {
+            for j in (0..W).filter(|&j| pulses.live[j]) {
+                let opl = pulses.t.map(|t| film.start + t[j] as f64 * film.width);
+                let w = pulses.w.map(|w| w[j] as f64);
+                film.splat_triangle(opl, w, pulses.area[j] as f64, &mut scratch.hist64);
+            }
+        } else {
+            let lanes = std::array::from_fn(|j| pulses.pulse(j));
+            splat_lanes(&lanes, &pulses.live, bins, &mut scratch.hist32);
         }
-        let c = mesh.centroid[k];
-        let visible = match visibility {
-            Visibility::None => true,
-            Visibility::Centroid => scratch.visible[mesh.parent[k] as usize],
-            Visibility::Subtriangle => !ctx.geom.occluded(c, x_l) && !ctx.geom.occluded(c, x_s),
-        };
-        if visible {
-            // τ is not linear: shift the pulse so its mean is the quadratic-exact mean
-            // (1/12) Σ τ(v_i) + (3/4) τ(c), a second-order correction of its position.
-            let tau_c = (x_l - c).length() + (x_s - c).length() + legs;
-            let shift = 0.75 * (tau_c - (t[0] + t[1] + t[2]) / 3.0);
-            film.splat_triangle(
-                [
-                    (t[0] + shift) as f64,
-                    (t[1] + shift) as f64,
-                    (t[2] + shift) as f64,
-                ],
-                [
-                    w[0] as f64 * scale,
-                    w[1] as f64 * scale,
-                    w[2] as f64 * scale,
-                ],
-                mesh.area[k] as f64,
-                hist,
-            );
+    }
+    let scale = ctx.power * ctx.f_wall * ctx.f_wall;
+    if gaussian {
+        for (o, h) in out.iter_mut().zip(&scratch.hist64) {
+            *o += (*h * scale as f64) as f32;
+        }
+    } else {
+        for (o, h) in out.iter_mut().zip(&scratch.hist32) {
+            *o += h * scale;
         }
     }
 }

@@ -1,0 +1,248 @@
+//! The `tri3` inner loop, eight sub-triangles per step: a structure of arrays with one
+//! lane per triangle, written branch-free so the compiler emits one AVX2 instruction per
+//! operation for all eight (build with `target-cpu=x86-64-v3`, as `.cargo/config.toml`
+//! does).
+//!
+//! For one measurement (laser spot `x_l`, sensor point `x_s`, wall normal `n_w`) and a
+//! triangle on the plane `n·x = d` with corners `v_i`:
+//!
+//! - corner OPL, in bins: `τ_i = (|x_l − v_i| + |v_i − x_s| + legs − start) / width`;
+//! - corner weight (the integrand of the `tri3` module doc at `v_i`):
+//!   `w_i = (ρ_i/π) cos θ_l cos θ_s cos θ_wall,l cos θ_wall,s / (r_l² r_s²)`. On the plane,
+//!   `r_l cos θ_l = n·x_l − d =: p_l` is the same for every corner (likewise `p_s`), and
+//!   `r_l cos θ_wall,l = −n_w·(x_l − v_i) =: c_l`, so
+//!   `w_i = (ρ_i/π) |p_l p_s| c_l c_s / (r_l² r_s²)²`, with `w_i = 0` where the corner is
+//!   behind the wall (`c_l ≤ 0` or `c_s ≤ 0`) and for a triangle that does not face both
+//!   wall points (`p_l, p_s > 0`, or `p_l p_s > 0` if two-sided);
+//! - the curvature shift of the pulse: `0.75 (τ(c) − mean τ_i)`, `c` the centroid;
+//! - the pulse constants of [`BoxPulse`].
+
+use crate::film::{BoxPulse, Film, LANES};
+use glam::Vec3;
+
+/// Triangles per block: the film's splat width, one AVX2 register of `f32`.
+pub const W: usize = LANES;
+
+type Lanes = [f32; W];
+
+/// Eight sub-triangles, one per lane. Padding lanes repeat a real triangle with zero
+/// area and albedo, so they compute finite numbers and are never live.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct TriBlock {
+    /// Corner positions, `p[corner][axis][lane]` (m).
+    pub p: [[Lanes; 3]; 3],
+    /// Unit normal.
+    pub n: [Lanes; 3],
+    /// Plane offset `n·v` (m).
+    pub plane: Lanes,
+    /// Area (m²).
+    pub area: Lanes,
+    /// `ρ/π` at each corner (1/sr).
+    pub brdf: [Lanes; 3],
+    /// 1 where the triangle reflects on both sides, else 0.
+    pub two_sided: Lanes,
+}
+
+/// The measurement's constants, in the units the lanes use.
+#[derive(Clone, Copy, Debug)]
+pub struct Frame {
+    pub x_l: Vec3,
+    pub x_s: Vec3,
+    pub n_w: Vec3,
+    /// `legs − start` (m): added to the hidden-path length to get OPL from the film's start.
+    pub offset: f32,
+    /// 1 / bin width (1/m).
+    pub inv_width: f32,
+    /// Pulses entirely outside `[lo, hi)` (bins) cannot reach the film.
+    pub lo: f32,
+    pub hi: f32,
+}
+
+impl Frame {
+    pub fn confocal(&self) -> bool {
+        self.x_l == self.x_s
+    }
+
+    /// OPL in bins from the film's start of a point at distances `r_l`, `r_s`.
+    #[inline(always)]
+    fn bins(&self, r_l: f32, r_s: f32) -> f32 {
+        (r_l + r_s + self.offset) * self.inv_width
+    }
+}
+
+/// Eight pulses, structure of arrays (the fields of [`BoxPulse`]).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PulseBlock {
+    pub t: [Lanes; 3],
+    pub w: [Lanes; 3],
+    pub area: Lanes,
+    p: [Lanes; 5],
+    /// The lane has weight and can reach the film.
+    pub live: [bool; W],
+}
+
+impl PulseBlock {
+    pub fn pulse(&self, j: usize) -> BoxPulse {
+        BoxPulse::from_parts(
+            self.t.map(|t| t[j]),
+            self.w.map(|w| w[j]),
+            self.p.map(|p| p[j]),
+        )
+    }
+}
+
+#[inline(always)]
+fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
+    a[0].mul_add(b[0], a[1].mul_add(b[1], a[2] * b[2]))
+}
+
+#[inline(always)]
+fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+impl TriBlock {
+    /// The eight pulses of this block for one measurement. `CONFOCAL` (`x_l == x_s`)
+    /// skips the second distance.
+    #[inline]
+    pub fn pulses<const CONFOCAL: bool>(&self, f: &Frame, out: &mut PulseBlock) {
+        let (x_l, x_s, n_w) = (f.x_l.to_array(), f.x_s.to_array(), f.n_w.to_array());
+        for j in 0..W {
+            let corner = |i: usize| [self.p[i][0][j], self.p[i][1][j], self.p[i][2][j]];
+            let mut tau = [0.0f32; 3];
+            let mut vw = [0.0f32; 3];
+            for i in 0..3 {
+                let v = corner(i);
+                let dl = sub(x_l, v);
+                let rl2 = dot(dl, dl);
+                let rl = rl2.sqrt();
+                let cl = -dot(n_w, dl);
+                let (rs2, rs, cs) = if CONFOCAL {
+                    (rl2, rl, cl)
+                } else {
+                    let ds = sub(x_s, v);
+                    let rs2 = dot(ds, ds);
+                    (rs2, rs2.sqrt(), -dot(n_w, ds))
+                };
+                tau[i] = f.bins(rl, rs);
+                let r4 = rl2 * rs2;
+                let front = (cl > 0.0) & (cs > 0.0);
+                vw[i] = if front {
+                    self.brdf[i][j] * cl * cs / (r4 * r4)
+                } else {
+                    0.0
+                };
+            }
+            let n = [self.n[0][j], self.n[1][j], self.n[2][j]];
+            let pl = dot(n, x_l) - self.plane[j];
+            let ps = if CONFOCAL {
+                pl
+            } else {
+                dot(n, x_s) - self.plane[j]
+            };
+            let prod = pl * ps;
+            let one_sided = (pl > 0.0) & (ps > 0.0);
+            let facing = if self.two_sided[j] > 0.0 {
+                prod > 0.0
+            } else {
+                one_sided
+            };
+            let g = if facing { prod.abs() } else { 0.0 };
+            let w = vw.map(|v| g * v);
+            // Curvature shift: the pulse's mean moves to (1/12) Σ τ_i + (3/4) τ(c).
+            let (a, b, c) = (corner(0), corner(1), corner(2));
+            let centroid = [0, 1, 2].map(|k| (a[k] + b[k] + c[k]) * (1.0 / 3.0));
+            let dc = sub(x_l, centroid);
+            let rcl = dot(dc, dc).sqrt();
+            let rcs = if CONFOCAL {
+                rcl
+            } else {
+                let dc = sub(x_s, centroid);
+                dot(dc, dc).sqrt()
+            };
+            let shift = 0.75 * (f.bins(rcl, rcs) - (tau[0] + tau[1] + tau[2]) * (1.0 / 3.0));
+            let p = BoxPulse::new(tau.map(|t| t + shift), w, self.area[j]);
+            let (t, pw, parts) = p.parts();
+            for i in 0..3 {
+                out.t[i][j] = t[i];
+                out.w[i][j] = pw[i];
+            }
+            for (o, v) in out.p.iter_mut().zip(parts) {
+                o[j] = v;
+            }
+            out.area[j] = self.area[j];
+            out.live[j] = (w[0] + w[1] + w[2] > 0.0) & (t[2] >= f.lo) & (t[0] < f.hi);
+        }
+    }
+}
+
+/// Packs sub-triangles into blocks of [`W`].
+#[allow(clippy::too_many_arguments)]
+pub fn pack(
+    corners: impl ExactSizeIterator<Item = ([Vec3; 3], [f32; 3])>,
+    normal: &[Vec3],
+    plane: &[f32],
+    area: &[f32],
+    two_sided: &[bool],
+) -> Vec<TriBlock> {
+    let count = corners.len();
+    let mut blocks = vec![TriBlock::default(); count.div_ceil(W)];
+    let mut last = None;
+    for (k, (v, brdf)) in corners.enumerate() {
+        put(
+            &mut blocks[k / W],
+            k % W,
+            v,
+            brdf,
+            normal[k],
+            plane[k],
+            area[k],
+            two_sided[k],
+        );
+        last = Some((v, normal[k], plane[k]));
+    }
+    if let Some((v, n, d)) = last {
+        for k in count..blocks.len() * W {
+            put(&mut blocks[k / W], k % W, v, [0.0; 3], n, d, 0.0, false);
+        }
+    }
+    blocks
+}
+
+#[allow(clippy::too_many_arguments)]
+fn put(
+    b: &mut TriBlock,
+    j: usize,
+    v: [Vec3; 3],
+    brdf: [f32; 3],
+    n: Vec3,
+    plane: f32,
+    area: f32,
+    two_sided: bool,
+) {
+    for i in 0..3 {
+        for (axis, x) in v[i].to_array().into_iter().enumerate() {
+            b.p[i][axis][j] = x;
+        }
+        b.brdf[i][j] = brdf[i];
+        b.n[i][j] = n[i];
+    }
+    b.plane[j] = plane;
+    b.area[j] = area;
+    b.two_sided[j] = if two_sided { 1.0 } else { 0.0 };
+}
+
+/// The measurement's frame for the film `film`.
+pub fn frame(ctx: &super::MeasurementCtx, film: &Film) -> Frame {
+    let inv_width = (1.0 / film.width) as f32;
+    let start = film.start as f32;
+    Frame {
+        x_l: ctx.x_l,
+        x_s: ctx.x_s,
+        n_w: ctx.n_w,
+        offset: ctx.opl_laser_leg(ctx.x_l) + ctx.opl_sensor_leg - start,
+        inv_width,
+        lo: (ctx.opl_min - start) * inv_width,
+        hi: (ctx.opl_max - start) * inv_width,
+    }
+}

@@ -1,5 +1,5 @@
 //! Triangle meshes: world-space positions, triangles, optional per-vertex albedo.
-//! Loaded from OBJ with tobj; placed by an affine transform; degenerate triangles
+//! Loaded from OBJ (own reader, vertices in file order); placed by an affine transform; degenerate triangles
 //! (zero area, non-finite) are dropped with a warning, since they cannot be sampled
 //! by area and only add work to the BVH.
 
@@ -23,47 +23,73 @@ impl TriMesh {
     }
 
     /// Parses OBJ text; `origin` names the source in error messages.
+    ///
+    /// Vertices keep the order of the file's `v` lines (unused ones too), so vertex `i`
+    /// of the mesh, and row `i` of a vertex gradient, is the file's `i`-th `v` line.
+    /// Faces are fanned into triangles `(a, b, c), (a, c, d), …`; negative indices count
+    /// back from the last vertex; `vt`/`vn` indices and every other statement are ignored.
+    /// (Own reader rather than tobj: tobj renumbers vertices by first use and drops unused
+    /// ones, which breaks that correspondence.)
     pub fn parse_obj(text: &str, origin: &Path) -> Result<TriMesh> {
-        check_obj_lines(text, origin)?;
-        let opts = tobj::LoadOptions {
-            triangulate: true,
-            ignore_points: true,
-            ignore_lines: true,
-            ..Default::default()
-        };
-        let mut reader = std::io::BufReader::new(text.as_bytes());
-        let (models, _) =
-            tobj::load_obj_buf(&mut reader, &opts, |_| Err(tobj::LoadError::OpenFileFailed))
-                .map_err(|e| Error::scene(origin, format!("malformed OBJ: {e}")))?;
         let mut mesh = TriMesh::default();
         // Vertex colours (`v x y z r g b`), if every vertex has them, become per-vertex
         // albedo: the mean of r, g, b (Umbra is monochrome).
-        let all_coloured = models
-            .iter()
-            .all(|m| m.mesh.vertex_color.len() == m.mesh.positions.len());
         let mut colours = Vec::new();
-        for m in &models {
-            let base = mesh.positions.len() as u32;
-            let p = &m.mesh.positions;
-            mesh.positions
-                .extend(p.chunks_exact(3).map(|c| Vec3::new(c[0], c[1], c[2])));
-            if all_coloured {
-                colours.extend(
-                    m.mesh
-                        .vertex_color
-                        .chunks_exact(3)
-                        .map(|c| (c[0] + c[1] + c[2]) / 3.0),
-                );
-            }
-            let n = (p.len() / 3) as u32;
-            for t in m.mesh.indices.chunks_exact(3) {
-                if t.iter().any(|&i| i >= n) {
-                    return Err(Error::scene(
-                        origin,
-                        "malformed OBJ: face index out of range",
-                    ));
+        let mut all_coloured = true;
+        let mut face = Vec::new();
+        for (i, line) in text.lines().enumerate() {
+            let at = |msg: String| Error::line(origin, i + 1, msg);
+            let mut it = line.split_whitespace();
+            match it.next() {
+                Some("v") => {
+                    let fields: Vec<&str> = it.collect();
+                    if fields.len() < 3 {
+                        return Err(at("vertex needs 3 coordinates".into()));
+                    }
+                    let mut xyz = [0.0f32; 3];
+                    for (x, c) in xyz.iter_mut().zip(&fields) {
+                        *x = match c.parse::<f32>() {
+                            Ok(v) if v.is_finite() => v,
+                            _ => {
+                                return Err(at(format!(
+                                    "vertex coordinate '{c}' is not a finite number"
+                                )))
+                            }
+                        };
+                    }
+                    mesh.positions.push(Vec3::from_array(xyz));
+                    let rgb: Option<Vec<f32>> = (fields.len() >= 6)
+                        .then(|| fields[3..6].iter().map(|c| c.parse().ok()).collect())
+                        .flatten();
+                    match rgb {
+                        Some(rgb) if all_coloured => colours.push(rgb.iter().sum::<f32>() / 3.0),
+                        _ => all_coloured = false,
+                    }
                 }
-                mesh.triangles.push([base + t[0], base + t[1], base + t[2]]);
+                Some("f") => {
+                    face.clear();
+                    let n = mesh.positions.len() as i64;
+                    for v in it {
+                        let first = v.split('/').next().unwrap_or("");
+                        let k = match first.parse::<i64>() {
+                            Ok(k) if k > 0 && k <= n => k - 1,
+                            Ok(k) if k < 0 && -k <= n => n + k,
+                            _ => {
+                                return Err(at(format!(
+                                    "face vertex '{v}' does not name an earlier vertex"
+                                )))
+                            }
+                        };
+                        face.push(k as u32);
+                    }
+                    if face.len() < 3 {
+                        return Err(at("face needs at least 3 vertices".into()));
+                    }
+                    for k in 1..face.len() - 1 {
+                        mesh.triangles.push([face[0], face[k], face[k + 1]]);
+                    }
+                }
+                _ => {}
             }
         }
         if mesh.triangles.is_empty() {
@@ -119,58 +145,6 @@ impl TriMesh {
     }
 }
 
-/// tobj reports malformed numbers without a line; find the line ourselves so the user
-/// sees `file.obj:12: ...`.
-fn check_obj_lines(text: &str, origin: &Path) -> Result<()> {
-    let mut n_vertices = 0usize;
-    for (i, line) in text.lines().enumerate() {
-        let mut it = line.split_whitespace();
-        match it.next() {
-            Some("v") => {
-                n_vertices += 1;
-                let coords: Vec<&str> = it.collect();
-                if coords.len() < 3 {
-                    return Err(Error::line(origin, i + 1, "vertex needs 3 coordinates"));
-                }
-                for c in &coords[..3] {
-                    match c.parse::<f32>() {
-                        Ok(v) if v.is_finite() => {}
-                        _ => {
-                            return Err(Error::line(
-                                origin,
-                                i + 1,
-                                format!("vertex coordinate '{c}' is not a finite number"),
-                            ))
-                        }
-                    }
-                }
-            }
-            Some("f") => {
-                let idx: Vec<&str> = it.collect();
-                if idx.len() < 3 {
-                    return Err(Error::line(origin, i + 1, "face needs at least 3 vertices"));
-                }
-                for v in idx {
-                    let first = v.split('/').next().unwrap_or("");
-                    match first.parse::<i64>() {
-                        Ok(k) if k > 0 && (k as usize) <= n_vertices => {}
-                        Ok(k) if k < 0 && ((-k) as usize) <= n_vertices => {}
-                        _ => {
-                            return Err(Error::line(
-                                origin,
-                                i + 1,
-                                format!("face vertex '{v}' does not name an earlier vertex"),
-                            ))
-                        }
-                    }
-                }
-            }
-            _ => {}
-        }
-    }
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -195,6 +169,15 @@ mod tests {
         let plain =
             TriMesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", Path::new("p.obj")).unwrap();
         assert_eq!(plain.vertex_albedo, None);
+    }
+
+    #[test]
+    fn keeps_the_files_vertex_order() {
+        let obj = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 5 5 5\nv 0 0 1\nf 5 2 3\nf 1/1 2/2/2 -1//3\n";
+        let m = TriMesh::parse_obj(obj, Path::new("o.obj")).unwrap();
+        assert_eq!(m.positions.len(), 5);
+        assert_eq!(m.positions[3], Vec3::splat(5.0));
+        assert_eq!(m.triangles, vec![[4, 1, 2], [0, 1, 4]]);
     }
 
     #[test]

@@ -5,6 +5,7 @@
 //! (meshes, BVH, sampling), [`film`] (time bins and kernels), [`rng`], [`transport`]
 //! (the estimators), [`io`] (files).
 
+pub mod adjoint;
 pub mod bench;
 pub mod error;
 pub mod film;

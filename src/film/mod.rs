@@ -14,6 +14,8 @@
 
 use crate::scene::{FilmSpec, KernelSpec};
 
+#[cfg(test)]
+mod adjoint_tests;
 mod box_pulse;
 mod pulse;
 
@@ -44,6 +46,52 @@ impl Film {
     /// OPL of the far edge of the last bin (m).
     pub fn end(&self) -> f64 {
         self.start + self.bins as f64 * self.width
+    }
+
+    /// The adjoint of [`Film::splat`] for a contribution at OPL `opl`, given the adjoint
+    /// histogram `adj` (`dLoss/dH`, length `bins`): `(Σ_b adj_b K_b(τ), Σ_b adj_b dK_b/dτ)`
+    /// with `K_b(τ) = ∫_bin k(t − τ) dt`, so a contribution of weight `w` adds
+    /// `first · dw + w · second · dτ` to the loss's derivative. With the box kernel the
+    /// second is 0 (DESIGN §4): the time-of-flight part of a vertex gradient is lost.
+    #[inline]
+    pub fn adjoint(&self, opl: f32, adj: &[f32]) -> (f64, f64) {
+        let opl = opl as f64;
+        match self.kernel {
+            KernelSpec::Box => {
+                let x = (opl - self.start) / self.width;
+                if x >= 0.0 && x < self.bins as f64 {
+                    (adj[x as usize] as f64, 0.0)
+                } else {
+                    (0.0, 0.0)
+                }
+            }
+            KernelSpec::Gaussian { sigma_opl } => {
+                let sigma = sigma_opl as f64;
+                let lo = ((opl - GAUSS_CUTOFF * sigma - self.start) / self.width).floor();
+                let hi = ((opl + GAUSS_CUTOFF * sigma - self.start) / self.width).floor();
+                if hi < 0.0 || lo >= self.bins as f64 {
+                    return (0.0, 0.0);
+                }
+                let lo = lo.max(0.0) as usize;
+                let hi = (hi as usize).min(self.bins - 1);
+                let inv = 1.0 / (sigma * std::f64::consts::SQRT_2);
+                // At edge e: Φ((e − τ)/σ) − ½ and its τ-derivative −φ((e − τ)/σ)/σ.
+                let at = |b: usize| {
+                    let u = (self.start + b as f64 * self.width - opl) * inv;
+                    let density = (-u * u).exp() * inv * std::f64::consts::FRAC_2_SQRT_PI * 0.5;
+                    (0.5 * libm::erf(u), -density)
+                };
+                let (mut value, mut slope) = (0.0, 0.0);
+                let mut prev = at(lo);
+                for (b, &a) in adj.iter().enumerate().take(hi + 1).skip(lo) {
+                    let next = at(b + 1);
+                    value += a as f64 * (next.0 - prev.0);
+                    slope += a as f64 * (next.1 - prev.1);
+                    prev = next;
+                }
+                (value, slope)
+            }
+        }
     }
 
     /// Adds weight `w` at OPL `opl` into `hist` (length `bins`).

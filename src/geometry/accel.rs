@@ -192,6 +192,18 @@ impl SceneGeometry {
         }
     }
 
+    /// The same geometry sampled with `base`'s discrete distributions over triangles
+    /// (same triangle count): the estimators' weights then use this geometry's areas with
+    /// `base`'s probabilities, so renders at perturbed vertices keep every sample's
+    /// triangle. That is the estimator that finite differences with common random
+    /// numbers differentiate, and whose derivative the adjoint pass computes.
+    pub fn with_sampling_of(mut self, base: &SceneGeometry) -> SceneGeometry {
+        assert_eq!(self.hidden.len(), base.hidden.len(), "same triangles");
+        self.hidden_area = base.hidden_area.clone();
+        self.hidden_and_wall_area = base.hidden_and_wall_area.clone();
+        self
+    }
+
     /// Closest surface hit by the ray `origin + t * dir` (`dir` unit), `t > eps`.
     pub fn intersect(&self, origin: Vec3, dir: Vec3) -> Option<Hit> {
         let ray = Ray::new(origin.into(), dir.into(), self.eps, f32::INFINITY);

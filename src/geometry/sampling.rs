@@ -36,6 +36,8 @@ pub struct TriangleSample {
     pub bary: [f32; 2],
     /// Density with respect to surface area over all triangles (1/m²).
     pub pdf_area: f32,
+    /// Probability of the triangle (`pdf_area` = `prob` / its area).
+    pub prob: f32,
 }
 
 impl AreaDistribution {
@@ -110,6 +112,7 @@ impl AreaDistribution {
             tri: self.order[i],
             bary: uniform_triangle([u0, u[1]]),
             pdf_area: self.pdf_area(),
+            prob: width,
         }
     }
 }

@@ -6,50 +6,140 @@
 //! `H(x_s) = P(x_l) (ρ_w/π) ∫_A (ρ(x)/π) G(x_l, x) V(x_l, x) G(x, x_s) V(x, x_s) dA(x) (ρ_w/π)`
 //!
 //! with `G(a, b) = cos θ_a cos θ_b / |a - b|²`. One sample picks a hidden point `x` with
-//! `pdf_area = 1/A` (a triangle by area, uniform barycentrics) and contributes the
+//! `pdf_area = p_t / A_t` (triangle `t` with probability `p_t ∝ A_t`, uniform
+//! barycentrics; `1/A` in total) and contributes the
 //! integrand over the pdf at OPL `|x_l - x| + |x - x_s|`. Exact visibility: two shadow
 //! rays. A finite laser spot is sampled uniformly (its power `P` spread over the disk).
 //!
 //! Supports: all capture types, one- and two-sided surfaces, per-vertex albedo.
 //! Does not: interreflections (see `path`), or paths through the wall.
 
-use super::{sample_spot, scatter_cosines, Contribution, MeasurementCtx, PathVertex, Sink};
-use crate::geometry::SurfaceKind;
+use super::{sample_spot, Contribution, HiddenGrad, MeasurementCtx, PathVertex, Sink};
+use crate::adjoint::dual::{self, Dual, Real, V3};
+use crate::geometry::{HiddenTri, SurfaceKind};
 use crate::rng::Sampler;
+use glam::Vec3;
 use std::f32::consts::FRAC_1_PI;
 
-/// Draws one three-bounce sample and emits its contribution (if any) to `sink`.
+/// Local parameters of a hidden triangle in the adjoint pass: its 9 corner coordinates
+/// (`v0.x, v0.y, v0.z, v1.x, …`), then its 3 corner albedos.
+pub const TRI_PARAMS: usize = 12;
+
+/// Derivatives with respect to a triangle's [`TRI_PARAMS`].
+pub type TriDual = Dual<TRI_PARAMS>;
+
+/// A hidden triangle as the formulas see it: corners and corner albedos, constants in
+/// the primal pass and [`TriDual`] variables in the adjoint pass.
+#[derive(Clone, Copy, Debug)]
+pub struct TriParams<R> {
+    pub v: [V3<R>; 3],
+    pub albedo: [R; 3],
+    pub two_sided: bool,
+}
+
+impl TriParams<f32> {
+    pub fn constant(t: &HiddenTri) -> Self {
+        TriParams {
+            v: t.v.map(|v| v.to_array()),
+            albedo: t.albedo,
+            two_sided: t.two_sided,
+        }
+    }
+}
+
+impl TriParams<TriDual> {
+    /// Every corner coordinate and albedo a variable.
+    pub fn variables(t: &HiddenTri) -> Self {
+        TriParams {
+            v: std::array::from_fn(|i| std::array::from_fn(|k| TriDual::var(t.v[i][k], 3 * i + k))),
+            albedo: std::array::from_fn(|i| TriDual::var(t.albedo[i], 9 + i)),
+            two_sided: t.two_sided,
+        }
+    }
+}
+
+impl<R: Real> TriParams<R> {
+    /// The point at barycentrics `(b1, b2)`: `(1 − b1 − b2) v0 + b1 v1 + b2 v2`.
+    pub fn point(&self, [b1, b2]: [f32; 2]) -> V3<R> {
+        let b0 = 1.0 - b1 - b2;
+        std::array::from_fn(|k| self.v[0][k] * b0 + self.v[1][k] * b1 + self.v[2][k] * b2)
+    }
+
+    pub fn albedo_at(&self, [b1, b2]: [f32; 2]) -> R {
+        self.albedo[0] * (1.0 - b1 - b2) + self.albedo[1] * b1 + self.albedo[2] * b2
+    }
+
+    /// Unit normal `(v1 − v0) × (v2 − v0)` normalised, and area (m²).
+    pub fn normal_area(&self) -> (V3<R>, R) {
+        let c = dual::cross(
+            dual::sub(self.v[1], self.v[0]),
+            dual::sub(self.v[2], self.v[0]),
+        );
+        let len = dual::length(c);
+        (dual::scale(c, R::c(1.0) / len), len * 0.5)
+    }
+}
+
+/// The three-bounce contribution of the hidden point at `bary` on `t`, a triangle that
+/// the area sampler picks with probability `prob`: `(weight, OPL)`, or `None` where the
+/// point cannot scatter from `x_l` to `x_s` (back-facing, behind the wall, outside the
+/// film). Visibility is the caller's. The weight is the integrand over
+/// `pdf_area = prob / A_t`: the area of the *current* triangle, so that moving its
+/// vertices scales the weight (the area factor of an attached sample, DESIGN §5) while
+/// the discrete choice stays put.
+#[inline]
+pub fn evaluate<R: Real>(
+    ctx: &MeasurementCtx,
+    t: &TriParams<R>,
+    bary: [f32; 2],
+    prob: f32,
+    x_l: Vec3,
+) -> Option<(R, R)> {
+    let x = t.point(bary);
+    let d_l = dual::sub(dual::constant(x_l), x);
+    let d_s = dual::sub(dual::constant(ctx.x_s), x);
+    let (r_l, r_s) = (dual::length(d_l), dual::length(d_s));
+    let (n, area) = t.normal_area();
+    // r cos θ at x toward each wall point, and at each wall point toward x.
+    let (c_l, c_s) = (dual::dot(n, d_l), dual::dot(n, d_s));
+    let facing = if t.two_sided {
+        c_l.v() * c_s.v() > 0.0
+    } else {
+        c_l.v() > 0.0 && c_s.v() > 0.0
+    };
+    let n_w = dual::constant(ctx.n_w);
+    let (cw_l, cw_s) = (-dual::dot(n_w, d_l), -dual::dot(n_w, d_s));
+    // The wall is one-sided: x must be in front of both wall points.
+    if !facing || cw_l.v() <= 0.0 || cw_s.v() <= 0.0 {
+        return None;
+    }
+    let opl = r_l + r_s + R::c(ctx.opl_laser_leg(x_l) + ctx.opl_sensor_leg);
+    if opl.v() < ctx.opl_min || opl.v() >= ctx.opl_max {
+        return None;
+    }
+    // G(x_l, x) G(x, x_s) = (c_l cw_l / r_l⁴)(c_s cw_s / r_s⁴).
+    let (r2_l, r2_s) = (r_l * r_l, r_s * r_s);
+    let geometry = (c_l * c_s).abs() * cw_l * cw_s / (r2_l * r2_l * r2_s * r2_s);
+    let f_x = t.albedo_at(bary) * FRAC_1_PI;
+    let constant = ctx.power * ctx.f_wall * ctx.f_wall / prob;
+    Some((f_x * geometry * area * constant, opl))
+}
+
+/// Draws one three-bounce sample and emits its contribution (if any) to `sink`; an
+/// adjoint sink also gets the derivatives of its weight and OPL with respect to the
+/// sampled triangle's corners and albedos (the sample keeps its barycentrics).
 #[inline]
 pub fn sample<S: Sink>(ctx: &MeasurementCtx, sampler: &mut Sampler, sink: &mut S) {
     let geom = ctx.geom;
     let ts = geom.hidden_area.sample(sampler.next_2d());
     let u_spot = sampler.next_2d();
     let tri = &geom.hidden[ts.tri as usize];
-    let x = tri.point(ts.bary);
     let x_l = sample_spot(ctx, u_spot);
-
-    let d_l = x_l - x;
-    let r_l = d_l.length();
-    let d_s = ctx.x_s - x;
-    let r_s = d_s.length();
-    let (w_l, w_s) = (d_l / r_l, d_s / r_s);
-    let Some((cos_x_l, cos_x_s)) = scatter_cosines(tri.n, tri.two_sided, w_l, w_s) else {
+    let Some((weight, opl)) = evaluate(ctx, &TriParams::constant(tri), ts.bary, ts.prob, x_l)
+    else {
         return;
     };
-    // The wall is one-sided: x must be in front of both wall points.
-    let cos_wall_l = -ctx.n_w.dot(w_l);
-    let cos_wall_s = -ctx.n_w.dot(w_s);
-    if cos_wall_l <= 0.0 || cos_wall_s <= 0.0 {
-        return;
-    }
-    let opl = r_l + r_s + ctx.opl_laser_leg(x_l) + ctx.opl_sensor_leg;
-    if opl < ctx.opl_min || opl >= ctx.opl_max {
-        return;
-    }
-    let g_l = cos_wall_l * cos_x_l / (r_l * r_l);
-    let g_s = cos_x_s * cos_wall_s / (r_s * r_s);
-    let f_x = tri.albedo_at(ts.bary) * FRAC_1_PI;
-    let weight = ctx.power * ctx.f_wall * f_x * g_l * g_s * ctx.f_wall / ts.pdf_area;
+    let x = tri.point(ts.bary);
     if weight <= 0.0 || geom.occluded(x, x_l) || geom.occluded(x, ctx.x_s) {
         return;
     }
@@ -66,10 +156,25 @@ pub fn sample<S: Sink>(ctx: &MeasurementCtx, sampler: &mut Sampler, sink: &mut S
         },
         ctx.wall_vertex(x_l),
     ];
-    sink.add(&Contribution {
+    let c = Contribution {
         opl,
         weight,
         bounces: 3,
         vertices: &vertices,
-    });
+    };
+    if S::ADJOINT {
+        let vars = TriParams::variables(tri);
+        if let Some((w, o)) = evaluate(ctx, &vars, ts.bary, ts.prob, x_l) {
+            sink.add_grad(
+                &c,
+                &[HiddenGrad {
+                    flat: ts.tri,
+                    weight: w.d,
+                    opl: o.d,
+                }],
+            );
+        }
+    } else {
+        sink.add(&c);
+    }
 }

@@ -54,9 +54,29 @@ pub struct Contribution<'a> {
     pub vertices: &'a [PathVertex],
 }
 
+/// Derivatives of a contribution's weight and OPL with respect to the local parameters
+/// of one hidden triangle it depends on (`mc3::TRI_PARAMS`: corners, then albedos).
+#[derive(Clone, Copy, Debug)]
+pub struct HiddenGrad {
+    /// Flat hidden-triangle index.
+    pub flat: u32,
+    pub weight: [f32; mc3::TRI_PARAMS],
+    /// (m per parameter unit)
+    pub opl: [f32; mc3::TRI_PARAMS],
+}
+
 /// Receives contributions.
 pub trait Sink {
+    /// An adjoint sink: the estimators then call [`Sink::add_grad`] instead of
+    /// [`Sink::add`], with the derivatives (the primal pass compiles without them).
+    const ADJOINT: bool = false;
+
     fn add(&mut self, c: &Contribution);
+
+    /// Adjoint pass: `c` and the derivatives of its weight and OPL.
+    fn add_grad(&mut self, c: &Contribution, _grads: &[HiddenGrad]) {
+        self.add(c)
+    }
 }
 
 /// The primal sink: splats weights into a histogram.

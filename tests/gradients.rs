@@ -209,3 +209,78 @@ fn gradient_does_not_depend_on_threads() {
     assert_eq!(a.vertices, b.vertices);
     assert_eq!(a.albedo, b.albedo);
 }
+
+#[test]
+fn cli_grad_writes_the_npz_and_refuses_a_wrong_shape() {
+    let dir = std::env::temp_dir().join(format!("umbra-grad-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let obj = dir.join("t.obj");
+    std::fs::write(&obj, LETTER).unwrap();
+    let scene_file = dir.join("s.toml");
+    std::fs::write(
+        &scene_file,
+        format!(
+            "capture_type = \"confocal\"\n[wall]\nsize = [2.0, 2.0]\n[laser]\norigin = [0.3, -0.4, 1.0]\n\
+             [scan]\nresolution = [2, 2]\nsize = [1.0, 1.0]\n[film]\ntemporal_bins = 300\nbin_width_opl = 0.01\n\
+             start_opl = 0.8\nkernel = \"gaussian\"\nsigma_opl = 0.012\n[[objects]]\nfile = {:?}\n\
+             transform = {{ translate = [0.0, 0.0, 0.8] }}\n[render]\nmodel = \"mc3\"\nspp = 64\n",
+            obj.to_str().unwrap()
+        ),
+    )
+    .unwrap();
+    let exe = env!("CARGO_BIN_EXE_umbra");
+    let run = |args: &[&str]| std::process::Command::new(exe).args(args).output().unwrap();
+    let target = dir.join("t.npy");
+    let out = run(&[
+        "render",
+        scene_file.to_str().unwrap(),
+        "-o",
+        target.to_str().unwrap(),
+        "--seed",
+        "9",
+        "--no-preview",
+        "-q",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let npz = dir.join("g.npz");
+    let out = run(&[
+        "grad",
+        scene_file.to_str().unwrap(),
+        "--target",
+        target.to_str().unwrap(),
+        "-o",
+        npz.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let mut z = ndarray_npy::NpzReader::new(std::fs::File::open(&npz).unwrap()).unwrap();
+    let mut names = z.names().unwrap();
+    names.sort();
+    assert_eq!(names, ["albedo", "loss", "vertices"]);
+    let v: ndarray::Array2<f64> = z.by_name("vertices").unwrap();
+    // One row per v line of the OBJ.
+    assert_eq!(
+        v.dim(),
+        (LETTER.lines().filter(|l| l.starts_with("v ")).count(), 3)
+    );
+    assert!(v.iter().all(|x| x.is_finite()) && v.iter().any(|&x| x != 0.0));
+    // A target of another shape is refused with its file named.
+    let wrong = dir.join("w.npy");
+    ndarray_npy::write_npy(&wrong, &ndarray::Array3::<f32>::zeros((2, 2, 7))).unwrap();
+    let out = run(&[
+        "grad",
+        scene_file.to_str().unwrap(),
+        "--target",
+        wrong.to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("w.npy: shape [2, 2, 7] differs"));
+    std::fs::remove_dir_all(&dir).ok();
+}

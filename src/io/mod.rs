@@ -55,3 +55,42 @@ pub fn read_npy(path: &Path) -> Result<Transient> {
     let data = arr.as_standard_layout().iter().copied().collect();
     Ok(Transient { data, shape })
 }
+
+/// Writes a gradient as `.npz`: `loss` (a scalar), `vertices` (V x 3, f64) or
+/// `vertices_<k>` per object if there are several, `albedo` (one per object), and
+/// `vertex_albedo` / `vertex_albedo_<k>` for objects with per-vertex albedo.
+pub fn write_gradient(path: &Path, loss: f64, g: &crate::adjoint::Gradient) -> Result<()> {
+    use ndarray::{arr0, Array1, Array2};
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    }
+    let npz_err =
+        |e: ndarray_npy::WriteNpzError| Error::Invalid(format!("{}: {e}", path.display()));
+    let file = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
+    let mut npz = ndarray_npy::NpzWriter::new(file);
+    npz.add_array("loss", &arr0(loss)).map_err(npz_err)?;
+    let several = g.vertices.len() > 1;
+    let name = |base: &str, k: usize| {
+        if several {
+            format!("{base}_{k}")
+        } else {
+            base.to_string()
+        }
+    };
+    for (k, v) in g.vertices.iter().enumerate() {
+        let a = Array2::from_shape_vec((v.len(), 3), v.iter().flatten().copied().collect())
+            .map_err(|e| Error::Invalid(e.to_string()))?;
+        npz.add_array(name("vertices", k).as_str(), &a)
+            .map_err(npz_err)?;
+    }
+    npz.add_array("albedo", &Array1::from(g.albedo.clone()))
+        .map_err(npz_err)?;
+    for (k, va) in g.vertex_albedo.iter().enumerate() {
+        if let Some(va) = va {
+            npz.add_array(name("vertex_albedo", k).as_str(), &Array1::from(va.clone()))
+                .map_err(npz_err)?;
+        }
+    }
+    npz.finish().map_err(npz_err)?;
+    Ok(())
+}

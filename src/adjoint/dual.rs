@@ -4,7 +4,7 @@
 
 use std::ops::{Add, Div, Mul, Neg, Sub};
 
-/// A real number the estimators' formulas accept: `f32` or a [`Dual`].
+/// A real number the estimators' formulas accept: `f32`, `f64`, or a [`Dual`] of either.
 pub trait Real:
     Copy
     + Add<Output = Self>
@@ -12,13 +12,20 @@ pub trait Real:
     + Mul<Output = Self>
     + Div<Output = Self>
     + Neg<Output = Self>
-    + Mul<f32, Output = Self>
 {
     /// A constant (zero derivative).
-    fn c(v: f32) -> Self;
-    /// The value (what comparisons and ray casts use).
-    fn v(self) -> f32;
+    fn c(v: f64) -> Self;
+    /// The value (what comparisons, bin indices and ray casts use).
+    fn v(self) -> f64;
     fn sqrt(self) -> Self;
+    fn exp(self) -> Self;
+    fn erf(self) -> Self;
+
+    /// `self · k` for a constant `k`.
+    #[inline(always)]
+    fn s(self, k: f32) -> Self {
+        self * Self::c(k as f64)
+    }
 
     fn abs(self) -> Self {
         if self.v() < 0.0 {
@@ -27,41 +34,93 @@ pub trait Real:
             self
         }
     }
+
+    fn min(self, o: Self) -> Self {
+        if o.v() < self.v() {
+            o
+        } else {
+            self
+        }
+    }
+
+    fn max(self, o: Self) -> Self {
+        if o.v() > self.v() {
+            o
+        } else {
+            self
+        }
+    }
 }
+
+/// The float types a [`Dual`] holds.
+pub trait Float: Real + Default + std::ops::AddAssign + std::ops::SubAssign {}
+impl Float for f32 {}
+impl Float for f64 {}
 
 impl Real for f32 {
     #[inline(always)]
-    fn c(v: f32) -> Self {
-        v
+    fn c(v: f64) -> Self {
+        v as f32
     }
     #[inline(always)]
-    fn v(self) -> f32 {
-        self
+    fn v(self) -> f64 {
+        self as f64
     }
     #[inline(always)]
     fn sqrt(self) -> Self {
         f32::sqrt(self)
     }
+    #[inline(always)]
+    fn exp(self) -> Self {
+        f32::exp(self)
+    }
+    #[inline(always)]
+    fn erf(self) -> Self {
+        libm::erff(self)
+    }
+}
+
+impl Real for f64 {
+    #[inline(always)]
+    fn c(v: f64) -> Self {
+        v
+    }
+    #[inline(always)]
+    fn v(self) -> f64 {
+        self
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        f64::sqrt(self)
+    }
+    #[inline(always)]
+    fn exp(self) -> Self {
+        f64::exp(self)
+    }
+    #[inline(always)]
+    fn erf(self) -> Self {
+        libm::erf(self)
+    }
 }
 
 /// `v + Σ d_i ε_i`: a value and its partial derivatives with respect to `N` parameters.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Dual<const N: usize> {
-    pub v: f32,
-    pub d: [f32; N],
+pub struct Dual<T, const N: usize> {
+    pub v: T,
+    pub d: [T; N],
 }
 
-impl<const N: usize> Dual<N> {
+impl<T: Float, const N: usize> Dual<T, N> {
     /// Parameter `i` with value `v` (derivative 1 in slot `i`).
-    pub fn var(v: f32, i: usize) -> Self {
-        let mut d = [0.0; N];
-        d[i] = 1.0;
+    pub fn var(v: T, i: usize) -> Self {
+        let mut d = [T::default(); N];
+        d[i] = T::c(1.0);
         Dual { v, d }
     }
 
     #[inline(always)]
-    fn map(self, v: f32, f: f32) -> Self {
-        // f(x) with f'(x) = f: value v, derivatives f d.
+    fn chain(self, v: T, f: T) -> Self {
+        // g(self) with value v and g' = f: derivatives f d.
         Dual {
             v,
             d: self.d.map(|d| f * d),
@@ -69,23 +128,41 @@ impl<const N: usize> Dual<N> {
     }
 }
 
-impl<const N: usize> Real for Dual<N> {
+impl<T: Float, const N: usize> Real for Dual<T, N> {
     #[inline(always)]
-    fn c(v: f32) -> Self {
-        Dual { v, d: [0.0; N] }
+    fn c(v: f64) -> Self {
+        Dual {
+            v: T::c(v),
+            d: [T::default(); N],
+        }
     }
     #[inline(always)]
-    fn v(self) -> f32 {
-        self.v
+    fn v(self) -> f64 {
+        self.v.v()
     }
     #[inline(always)]
     fn sqrt(self) -> Self {
         let s = self.v.sqrt();
-        self.map(s, 0.5 / s)
+        self.chain(s, T::c(0.5) / s)
+    }
+    #[inline(always)]
+    fn exp(self) -> Self {
+        let e = self.v.exp();
+        self.chain(e, e)
+    }
+    #[inline(always)]
+    fn erf(self) -> Self {
+        let slope = T::c(std::f64::consts::FRAC_2_SQRT_PI) * (-(self.v * self.v)).exp();
+        self.chain(self.v.erf(), slope)
+    }
+    #[inline(always)]
+    fn s(self, k: f32) -> Self {
+        let k = T::c(k as f64);
+        self.chain(self.v * k, k)
     }
 }
 
-impl<const N: usize> Add for Dual<N> {
+impl<T: Float, const N: usize> Add for Dual<T, N> {
     type Output = Self;
     #[inline(always)]
     fn add(self, o: Self) -> Self {
@@ -95,7 +172,7 @@ impl<const N: usize> Add for Dual<N> {
     }
 }
 
-impl<const N: usize> Sub for Dual<N> {
+impl<T: Float, const N: usize> Sub for Dual<T, N> {
     type Output = Self;
     #[inline(always)]
     fn sub(self, o: Self) -> Self {
@@ -105,7 +182,7 @@ impl<const N: usize> Sub for Dual<N> {
     }
 }
 
-impl<const N: usize> Mul for Dual<N> {
+impl<T: Float, const N: usize> Mul for Dual<T, N> {
     type Output = Self;
     // The product rule adds.
     #[allow(clippy::suspicious_arithmetic_impl)]
@@ -119,12 +196,12 @@ impl<const N: usize> Mul for Dual<N> {
     }
 }
 
-impl<const N: usize> Div for Dual<N> {
+impl<T: Float, const N: usize> Div for Dual<T, N> {
     type Output = Self;
     #[allow(clippy::suspicious_arithmetic_impl)]
     #[inline(always)]
     fn div(self, o: Self) -> Self {
-        let inv = 1.0 / o.v;
+        let inv = T::c(1.0) / o.v;
         let v = self.v * inv;
         let mut d = self.d;
         d.iter_mut()
@@ -134,19 +211,11 @@ impl<const N: usize> Div for Dual<N> {
     }
 }
 
-impl<const N: usize> Neg for Dual<N> {
+impl<T: Float, const N: usize> Neg for Dual<T, N> {
     type Output = Self;
     #[inline(always)]
     fn neg(self) -> Self {
-        self.map(-self.v, -1.0)
-    }
-}
-
-impl<const N: usize> Mul<f32> for Dual<N> {
-    type Output = Self;
-    #[inline(always)]
-    fn mul(self, k: f32) -> Self {
-        self.map(self.v * k, k)
+        self.chain(-self.v, T::c(-1.0))
     }
 }
 
@@ -185,13 +254,13 @@ pub fn length<R: Real>(a: V3<R>) -> R {
 /// A constant vector.
 #[inline(always)]
 pub fn constant<R: Real>(a: glam::Vec3) -> V3<R> {
-    [R::c(a.x), R::c(a.y), R::c(a.z)]
+    [R::c(a.x as f64), R::c(a.y as f64), R::c(a.z as f64)]
 }
 
 /// The value of a vector.
 #[inline(always)]
 pub fn value<R: Real>(a: V3<R>) -> glam::Vec3 {
-    glam::Vec3::new(a[0].v(), a[1].v(), a[2].v())
+    glam::Vec3::new(a[0].v() as f32, a[1].v() as f32, a[2].v() as f32)
 }
 
 #[cfg(test)]
@@ -203,23 +272,32 @@ mod tests {
     fn derivatives_match_finite_differences() {
         fn f<R: Real>(x: R, y: R) -> R {
             let a = [x, y, R::c(0.3)];
-            let b = [y * 2.0, -x, x * y];
+            let b = [y.s(2.0), -x, x * y];
             let n = cross(a, b);
             (dot(n, a) + length(n)) / (x * x + R::c(1.0)).sqrt() - (x - y).abs()
+                + x.s(0.5).erf() * (-y).exp()
         }
-        let (x, y) = (0.7f32, -0.4f32);
-        let d = f(Dual::<2>::var(x, 0), Dual::<2>::var(y, 1));
-        let h = 1e-3f32;
+        let (x, y) = (0.7f64, -0.4f64);
+        let d = f(Dual::<f64, 2>::var(x, 0), Dual::<f64, 2>::var(y, 1));
+        let d32 = f(
+            Dual::<f32, 2>::var(x as f32, 0),
+            Dual::<f32, 2>::var(y as f32, 1),
+        );
+        let h = 1e-5;
         let fd_x = (f(x + h, y) - f(x - h, y)) / (2.0 * h);
         let fd_y = (f(x, y + h) - f(x, y - h)) / (2.0 * h);
-        assert!((d.v - f(x, y)).abs() < 1e-6);
+        assert!((d.v - f(x, y)).abs() < 1e-12);
         assert!(
-            (d.d[0] - fd_x).abs() < 1e-3 * fd_x.abs().max(1.0),
+            (d.d[0] - fd_x).abs() < 1e-8 * fd_x.abs().max(1.0),
             "{d:?} {fd_x}"
         );
         assert!(
-            (d.d[1] - fd_y).abs() < 1e-3 * fd_y.abs().max(1.0),
+            (d.d[1] - fd_y).abs() < 1e-8 * fd_y.abs().max(1.0),
             "{d:?} {fd_y}"
+        );
+        assert!(
+            (d32.d[0] as f64 - fd_x).abs() < 1e-5 * fd_x.abs().max(1.0),
+            "{d32:?}"
         );
     }
 }

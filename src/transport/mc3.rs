@@ -26,7 +26,7 @@ use std::f32::consts::FRAC_1_PI;
 pub const TRI_PARAMS: usize = 12;
 
 /// Derivatives with respect to a triangle's [`TRI_PARAMS`].
-pub type TriDual = Dual<TRI_PARAMS>;
+pub type TriDual = Dual<f32, TRI_PARAMS>;
 
 /// A hidden triangle as the formulas see it: corners and corner albedos, constants in
 /// the primal pass and [`TriDual`] variables in the adjoint pass.
@@ -62,11 +62,11 @@ impl<R: Real> TriParams<R> {
     /// The point at barycentrics `(b1, b2)`: `(1 − b1 − b2) v0 + b1 v1 + b2 v2`.
     pub fn point(&self, [b1, b2]: [f32; 2]) -> V3<R> {
         let b0 = 1.0 - b1 - b2;
-        std::array::from_fn(|k| self.v[0][k] * b0 + self.v[1][k] * b1 + self.v[2][k] * b2)
+        std::array::from_fn(|k| self.v[0][k].s(b0) + self.v[1][k].s(b1) + self.v[2][k].s(b2))
     }
 
     pub fn albedo_at(&self, [b1, b2]: [f32; 2]) -> R {
-        self.albedo[0] * (1.0 - b1 - b2) + self.albedo[1] * b1 + self.albedo[2] * b2
+        self.albedo[0].s(1.0 - b1 - b2) + self.albedo[1].s(b1) + self.albedo[2].s(b2)
     }
 
     /// Unit normal `(v1 − v0) × (v2 − v0)` normalised, and area (m²).
@@ -76,7 +76,7 @@ impl<R: Real> TriParams<R> {
             dual::sub(self.v[2], self.v[0]),
         );
         let len = dual::length(c);
-        (dual::scale(c, R::c(1.0) / len), len * 0.5)
+        (dual::scale(c, R::c(1.0) / len), len.s(0.5))
     }
 }
 
@@ -113,16 +113,16 @@ pub fn evaluate<R: Real>(
     if !facing || cw_l.v() <= 0.0 || cw_s.v() <= 0.0 {
         return None;
     }
-    let opl = r_l + r_s + R::c(ctx.opl_laser_leg(x_l) + ctx.opl_sensor_leg);
-    if opl.v() < ctx.opl_min || opl.v() >= ctx.opl_max {
+    let opl = r_l + r_s + R::c((ctx.opl_laser_leg(x_l) + ctx.opl_sensor_leg) as f64);
+    if opl.v() < ctx.opl_min as f64 || opl.v() >= ctx.opl_max as f64 {
         return None;
     }
     // G(x_l, x) G(x, x_s) = (c_l cw_l / r_l⁴)(c_s cw_s / r_s⁴).
     let (r2_l, r2_s) = (r_l * r_l, r_s * r_s);
     let geometry = (c_l * c_s).abs() * cw_l * cw_s / (r2_l * r2_l * r2_s * r2_s);
-    let f_x = t.albedo_at(bary) * FRAC_1_PI;
+    let f_x = t.albedo_at(bary).s(FRAC_1_PI);
     let constant = ctx.power * ctx.f_wall * ctx.f_wall / prob;
-    Some((f_x * geometry * area * constant, opl))
+    Some(((f_x * geometry * area).s(constant), opl))
 }
 
 /// Draws one three-bounce sample and emits its contribution (if any) to `sink`; an

@@ -20,11 +20,13 @@ pub trait Real:
     fn sqrt(self) -> Self;
     fn exp(self) -> Self;
     fn erf(self) -> Self;
+    /// `1 − erf`, precise in the tail.
+    fn erfc(self) -> Self;
 
     /// `self · k` for a constant `k`.
     #[inline(always)]
-    fn s(self, k: f32) -> Self {
-        self * Self::c(k as f64)
+    fn s<K: Into<f64>>(self, k: K) -> Self {
+        self * Self::c(k.into())
     }
 
     fn abs(self) -> Self {
@@ -78,6 +80,10 @@ impl Real for f32 {
     fn erf(self) -> Self {
         libm::erff(self)
     }
+    #[inline(always)]
+    fn erfc(self) -> Self {
+        libm::erfcf(self)
+    }
 }
 
 impl Real for f64 {
@@ -100,6 +106,10 @@ impl Real for f64 {
     #[inline(always)]
     fn erf(self) -> Self {
         libm::erf(self)
+    }
+    #[inline(always)]
+    fn erfc(self) -> Self {
+        libm::erfc(self)
     }
 }
 
@@ -156,8 +166,13 @@ impl<T: Float, const N: usize> Real for Dual<T, N> {
         self.chain(self.v.erf(), slope)
     }
     #[inline(always)]
-    fn s(self, k: f32) -> Self {
-        let k = T::c(k as f64);
+    fn erfc(self) -> Self {
+        let slope = T::c(-std::f64::consts::FRAC_2_SQRT_PI) * (-(self.v * self.v)).exp();
+        self.chain(self.v.erfc(), slope)
+    }
+    #[inline(always)]
+    fn s<K: Into<f64>>(self, k: K) -> Self {
+        let k = T::c(k.into());
         self.chain(self.v * k, k)
     }
 }
@@ -276,6 +291,7 @@ mod tests {
             let n = cross(a, b);
             (dot(n, a) + length(n)) / (x * x + R::c(1.0)).sqrt() - (x - y).abs()
                 + x.s(0.5).erf() * (-y).exp()
+                + (x + y).erfc()
         }
         let (x, y) = (0.7f64, -0.4f64);
         let d = f(Dual::<f64, 2>::var(x, 0), Dual::<f64, 2>::var(y, 1));

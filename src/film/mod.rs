@@ -12,6 +12,7 @@
 //! Its derivative with respect to `τ` is `w * (k(t_b - τ) - k(t_{b+1} - τ))`, zero almost
 //! everywhere for `box`.
 
+use crate::adjoint::dual::{Dual, Real};
 use crate::scene::{FilmSpec, KernelSpec};
 
 #[cfg(test)]
@@ -55,74 +56,53 @@ impl Film {
     /// second is 0 (DESIGN §4): the time-of-flight part of a vertex gradient is lost.
     #[inline]
     pub fn adjoint(&self, opl: f32, adj: &[f32]) -> (f64, f64) {
-        let opl = opl as f64;
-        match self.kernel {
-            KernelSpec::Box => {
-                let x = (opl - self.start) / self.width;
-                if x >= 0.0 && x < self.bins as f64 {
-                    (adj[x as usize] as f64, 0.0)
-                } else {
-                    (0.0, 0.0)
-                }
-            }
-            KernelSpec::Gaussian { sigma_opl } => {
-                let sigma = sigma_opl as f64;
-                let lo = ((opl - GAUSS_CUTOFF * sigma - self.start) / self.width).floor();
-                let hi = ((opl + GAUSS_CUTOFF * sigma - self.start) / self.width).floor();
-                if hi < 0.0 || lo >= self.bins as f64 {
-                    return (0.0, 0.0);
-                }
-                let lo = lo.max(0.0) as usize;
-                let hi = (hi as usize).min(self.bins - 1);
-                let inv = 1.0 / (sigma * std::f64::consts::SQRT_2);
-                // At edge e: Φ((e − τ)/σ) − ½ and its τ-derivative −φ((e − τ)/σ)/σ.
-                let at = |b: usize| {
-                    let u = (self.start + b as f64 * self.width - opl) * inv;
-                    let density = (-u * u).exp() * inv * std::f64::consts::FRAC_2_SQRT_PI * 0.5;
-                    (0.5 * libm::erf(u), -density)
-                };
-                let (mut value, mut slope) = (0.0, 0.0);
-                let mut prev = at(lo);
-                for (b, &a) in adj.iter().enumerate().take(hi + 1).skip(lo) {
-                    let next = at(b + 1);
-                    value += a as f64 * (next.0 - prev.0);
-                    slope += a as f64 * (next.1 - prev.1);
-                    prev = next;
-                }
-                (value, slope)
-            }
-        }
+        let (mut value, mut slope) = (0.0, 0.0);
+        let tau = Dual::<f64, 1>::var(opl as f64, 0);
+        self.point_bins(tau, Dual::c(1.0), |b, k| {
+            value += adj[b] as f64 * k.v;
+            slope += adj[b] as f64 * k.d[0];
+        });
+        (value, slope)
     }
 
     /// Adds weight `w` at OPL `opl` into `hist` (length `bins`).
     #[inline]
     pub fn splat(&self, opl: f32, w: f32, hist: &mut [f64]) {
-        let (opl, w) = (opl as f64, w as f64);
+        self.point_bins(opl as f64, w as f64, |b, v| hist[b] += v);
+    }
+
+    /// Weight `w` at OPL `opl` through the kernel: calls `add(b, w K_b(opl))` for every
+    /// bin `b` it reaches. Generic, so the same code gives values (`f64`) and derivatives
+    /// ([`Dual`]).
+    #[inline]
+    pub fn point_bins<R: Real>(&self, opl: R, w: R, mut add: impl FnMut(usize, R)) {
         match self.kernel {
             KernelSpec::Box => {
-                let x = (opl - self.start) / self.width;
+                let x = (opl.v() - self.start) / self.width;
                 if x >= 0.0 && x < self.bins as f64 {
-                    hist[x as usize] += w;
+                    add(x as usize, w);
                 }
             }
             KernelSpec::Gaussian { sigma_opl } => {
                 let sigma = sigma_opl as f64;
-                let lo = ((opl - GAUSS_CUTOFF * sigma - self.start) / self.width).floor();
-                let hi = ((opl + GAUSS_CUTOFF * sigma - self.start) / self.width).floor();
+                let lo = ((opl.v() - GAUSS_CUTOFF * sigma - self.start) / self.width).floor();
+                let hi = ((opl.v() + GAUSS_CUTOFF * sigma - self.start) / self.width).floor();
                 if hi < 0.0 || lo >= self.bins as f64 {
                     return;
                 }
                 let lo = lo.max(0.0) as usize;
                 let hi = (hi as usize).min(self.bins - 1);
                 let inv = 1.0 / (sigma * std::f64::consts::SQRT_2);
+                // Φ((edge − τ)/σ) − ½.
                 let cdf = |b: usize| {
-                    let edge = self.start + b as f64 * self.width;
-                    0.5 * libm::erf((edge - opl) * inv)
+                    (R::c(self.start + b as f64 * self.width) - opl)
+                        .s(inv)
+                        .erf()
                 };
                 let mut prev = cdf(lo);
-                for (b, h) in hist.iter_mut().enumerate().take(hi + 1).skip(lo) {
+                for b in lo..=hi {
                     let next = cdf(b + 1);
-                    *h += w * (next - prev);
+                    add(b, w * (next - prev).s(0.5));
                     prev = next;
                 }
             }

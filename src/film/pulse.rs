@@ -18,6 +18,7 @@
 //! `∫ u^k φ(u) du` (antiderivatives `Φ`, `−φ`, `Φ − uφ`, `−(u² + 2)φ`) over each piece.
 
 use super::{Film, GAUSS_CUTOFF};
+use crate::adjoint::dual::Real;
 use crate::scene::KernelSpec;
 
 /// Pulses narrower than this fraction of a bin (or of σ) are splatted as a point at
@@ -25,26 +26,28 @@ use crate::scene::KernelSpec;
 const NARROW: f64 = 1e-7;
 
 /// A triangle's corners sorted by OPL, with the constants of its two cubic pieces.
+/// Generic over [`Real`], so the same code yields bin values (`f64`) and their
+/// derivatives (the `tri3` adjoint).
 #[derive(Clone, Copy, Debug)]
-struct Pulse {
-    t: [f64; 3],
-    w: [f64; 3],
-    total: f64,
+struct Pulse<R> {
+    t: [R; 3],
+    w: [R; 3],
+    total: R,
     /// `[t0, t1]`: `W = ka z² (3 w0 + ga z)`, `z = t − t0`.
-    ka: f64,
-    ga: f64,
+    ka: R,
+    ga: R,
     /// `[t1, t2]`: `W = total − kb y² (3 w2 + gb y)`, `y = t2 − t`.
-    kb: f64,
-    gb: f64,
+    kb: R,
+    gb: R,
 }
 
-impl Pulse {
+impl<R: Real> Pulse<R> {
     #[inline]
-    fn new(t: [f64; 3], w: [f64; 3], area: f64) -> Self {
+    fn new(t: [R; 3], w: [R; 3], area: R) -> Self {
         // Sorting network on (t, w) pairs.
         let (mut t, mut w) = (t, w);
         let mut swap = |i: usize, j: usize| {
-            if t[j] < t[i] {
+            if t[j].v() < t[i].v() {
                 t.swap(i, j);
                 w.swap(i, j);
             }
@@ -55,30 +58,32 @@ impl Pulse {
         let ([t0, t1, t2], [w0, w1, w2]) = (t, w);
         // Three reciprocals serve all four constants (a pulse narrower than NARROW
         // never gets here with t2 == t0).
-        let inv_span = 1.0 / (t2 - t0);
-        let third_area = area / 3.0;
-        let (ka, ga) = if t1 > t0 {
-            let inv = 1.0 / (t1 - t0);
+        let one = R::c(1.0);
+        let inv_span = one / (t2 - t0);
+        let third_area = area.s(1.0 / 3.0);
+        let zero = R::c(0.0);
+        let (ka, ga) = if t1.v() > t0.v() {
+            let inv = one / (t1 - t0);
             (
                 third_area * inv * inv_span,
                 (w1 - w0) * inv + (w2 - w0) * inv_span,
             )
         } else {
-            (0.0, 0.0)
+            (zero, zero)
         };
-        let (kb, gb) = if t2 > t1 {
-            let inv = 1.0 / (t2 - t1);
+        let (kb, gb) = if t2.v() > t1.v() {
+            let inv = one / (t2 - t1);
             (
                 third_area * inv * inv_span,
                 (w1 - w2) * inv + (w0 - w2) * inv_span,
             )
         } else {
-            (0.0, 0.0)
+            (zero, zero)
         };
         Pulse {
             t,
             w,
-            total: area * (w0 + w1 + w2) / 3.0,
+            total: third_area * (w0 + w1 + w2),
             ka,
             ga,
             kb,
@@ -88,52 +93,53 @@ impl Pulse {
 
     /// Weighted area with OPL below `x`, for `t0 ≤ x ≤ t2` (box kernel).
     #[inline]
-    fn cdf_inside(&self, x: f64) -> f64 {
+    fn cdf_inside(&self, x: R) -> R {
         let ([t0, t1, t2], [w0, _, w2]) = (self.t, self.w);
-        if x <= t1 {
+        if x.v() <= t1.v() {
             let z = x - t0;
-            self.ka * z * z * (3.0 * w0 + self.ga * z)
+            self.ka * z * z * (w0.s(3.0) + self.ga * z)
         } else {
             let y = t2 - x;
-            self.total - self.kb * y * y * (3.0 * w2 + self.gb * y)
+            self.total - self.kb * y * y * (w2.s(3.0) + self.gb * y)
         }
     }
 
     /// `H(x) = ∫ Φ((x − t)/σ) dW(t)` (Gaussian kernel).
-    fn gauss_cdf(&self, sigma: f64, x: f64) -> f64 {
+    fn gauss_cdf(&self, sigma: f64, x: f64) -> R {
         let ([t0, t1, t2], [w0, _, w2]) = (self.t, self.w);
-        let mut h = self.total * cap_phi((x - t2) / sigma);
+        let (xr, inv_s, s) = (R::c(x), 1.0 / sigma, sigma);
+        let mut h = self.total * cap_phi((xr - t2).s(inv_s));
         // Piece [t0, t1]: W = ka (3 w0 z² + ga z³), z = t − t0 = d − σu.
-        if t1 > t0 {
-            let (k, g, d) = (self.ka, self.ga, x - t0);
+        if t1.v() > t0.v() {
+            let (k, g, d) = (self.ka, self.ga, xr - t0);
             let e = [
-                k * (3.0 * w0 * d * d + g * d * d * d),
-                k * (-6.0 * w0 * d * sigma - 3.0 * g * d * d * sigma),
-                k * (3.0 * w0 * sigma * sigma + 3.0 * g * d * sigma * sigma),
-                k * (-g * sigma * sigma * sigma),
+                k * (w0.s(3.0) * d * d + g * d * d * d),
+                k * (w0.s(-6.0) * d.s(s) - g.s(3.0) * d * d.s(s)),
+                k * (w0.s(3.0 * s * s) + g.s(3.0 * s * s) * d),
+                -(k * g).s(s * s * s),
             ];
-            h += moments(e, (x - t1) / sigma, (x - t0) / sigma);
+            h = h + moments(e, (xr - t1).s(inv_s), (xr - t0).s(inv_s));
         }
         // Piece [t1, t2]: W = total − kb (3 w2 y² + gb y³), y = t2 − t = e + σu.
-        if t2 > t1 {
-            let (k, g, e_) = (self.kb, self.gb, t2 - x);
+        if t2.v() > t1.v() {
+            let (k, g, e_) = (self.kb, self.gb, t2 - xr);
             let e = [
-                self.total - k * (3.0 * w2 * e_ * e_ + g * e_ * e_ * e_),
-                -k * (6.0 * w2 * e_ * sigma + 3.0 * g * e_ * e_ * sigma),
-                -k * (3.0 * w2 * sigma * sigma + 3.0 * g * e_ * sigma * sigma),
-                -k * (g * sigma * sigma * sigma),
+                self.total - k * (w2.s(3.0) * e_ * e_ + g * e_ * e_ * e_),
+                -(k * (w2.s(6.0) * e_.s(s) + g.s(3.0) * e_ * e_.s(s))),
+                -(k * (w2.s(3.0 * s * s) + g.s(3.0 * s * s) * e_)),
+                -(k * g).s(s * s * s),
             ];
-            h += moments(e, (x - t2) / sigma, (x - t1) / sigma);
+            h = h + moments(e, (xr - t2).s(inv_s), (xr - t1).s(inv_s));
         }
         h
     }
 }
 
 /// `∫_{lo}^{hi} Σ_k e_k u^k φ(u) du`.
-fn moments(e: [f64; 4], lo: f64, hi: f64) -> f64 {
-    let anti = |u: f64| {
+fn moments<R: Real>(e: [R; 4], lo: R, hi: R) -> R {
+    let anti = |u: R| {
         let (p, c) = (phi(u), cap_phi(u));
-        e[0] * c - e[1] * p + e[2] * (c - u * p) - e[3] * (u * u + 2.0) * p
+        e[0] * c - e[1] * p + e[2] * (c - u * p) - e[3] * (u * u + R::c(2.0)) * p
     };
     anti(hi) - anti(lo)
 }
@@ -143,6 +149,19 @@ impl Film {
     /// triangle) and area `area` into `hist`: `area · mean(w)` in all, over the bins.
     #[inline]
     pub fn splat_triangle(&self, t: [f64; 3], w: [f64; 3], area: f64, hist: &mut [f64]) {
+        self.triangle_bins(t, w, area, |b, v| hist[b] += v);
+    }
+
+    /// The triangle pulse through the kernel: calls `add(b, content of bin b)` for every
+    /// bin it reaches. Generic, so the same code gives values and derivatives.
+    #[inline]
+    pub fn triangle_bins<R: Real>(
+        &self,
+        t: [R; 3],
+        w: [R; 3],
+        area: R,
+        mut add: impl FnMut(usize, R),
+    ) {
         let p = Pulse::new(t, w, area);
         let [t0, t1, t2] = p.t;
         let (sigma, margin, scale) = match self.kernel {
@@ -152,19 +171,19 @@ impl Film {
                 (s, GAUSS_CUTOFF * s, s.min(self.width))
             }
         };
-        if t2 - t0 <= NARROW * scale {
+        if t2.v() - t0.v() <= NARROW * scale {
             let wsum = p.w[0] + p.w[1] + p.w[2];
-            let mean = if wsum != 0.0 {
+            let mean = if wsum.v() != 0.0 {
                 (t0 * p.w[0] + t1 * p.w[1] + t2 * p.w[2]) / wsum
             } else {
-                (t0 + t2) / 2.0
+                (t0 + t2).s(0.5)
             };
-            self.splat(mean as f32, p.total as f32, hist);
+            self.point_bins(mean, p.total, add);
             return;
         }
         let inv_width = 1.0 / self.width;
-        let first = ((t0 - margin - self.start) * inv_width).floor();
-        let last = ((t2 + margin - self.start) * inv_width).floor();
+        let first = ((t0.v() - margin - self.start) * inv_width).floor();
+        let last = ((t2.v() + margin - self.start) * inv_width).floor();
         if last < 0.0 || first >= self.bins as f64 {
             return;
         }
@@ -175,44 +194,43 @@ impl Film {
         if sigma == 0.0 {
             // Box: W is 0 at or before the first edge, `total` from the last bin's far edge.
             if first_bin == last_bin {
-                hist[lo] += p.total;
+                add(lo, p.total);
                 return;
             }
             let mut prev = if first_bin < 0 {
-                p.cdf_inside(edge(0).max(t0))
+                p.cdf_inside(R::c(edge(0)).max(t0))
             } else {
-                0.0
+                R::c(0.0)
             };
             // Bins before the pulse's last one end inside it; the last one takes the rest.
             let inner_end = (last_bin as usize).min(hi + 1);
-            let mut x = edge(lo);
-            for h in hist[lo..inner_end.max(lo)].iter_mut() {
-                x += self.width;
-                let next = p.cdf_inside(x.min(t2));
-                *h += next - prev;
+            for b in lo..inner_end.max(lo) {
+                let next = p.cdf_inside(R::c(edge(b + 1)).min(t2));
+                add(b, next - prev);
                 prev = next;
             }
             if last_bin as usize <= hi {
-                hist[last_bin as usize] += p.total - prev;
+                add(last_bin as usize, p.total - prev);
             }
         } else {
             let mut prev = p.gauss_cdf(sigma, edge(lo));
-            for (b, h) in hist.iter_mut().enumerate().take(hi + 1).skip(lo) {
+            for b in lo..=hi {
                 let next = p.gauss_cdf(sigma, edge(b + 1));
-                *h += next - prev;
+                add(b, next - prev);
                 prev = next;
             }
         }
     }
 }
 
-fn phi(u: f64) -> f64 {
+fn phi<R: Real>(u: R) -> R {
     const INV_SQRT_2PI: f64 = 0.398_942_280_401_432_7;
-    INV_SQRT_2PI * (-0.5 * u * u).exp()
+    (u * u).s(-0.5).exp().s(INV_SQRT_2PI)
 }
 
-fn cap_phi(u: f64) -> f64 {
-    0.5 * libm::erfc(-u * std::f64::consts::FRAC_1_SQRT_2)
+/// `Φ(u) = erfc(−u/√2)/2`.
+fn cap_phi<R: Real>(u: R) -> R {
+    u.s(-std::f64::consts::FRAC_1_SQRT_2).erfc().s(0.5)
 }
 
 #[cfg(test)]

@@ -6,11 +6,14 @@
 
 mod common;
 use common::*;
-use umbra::adjoint::{self, Loss};
+use umbra::adjoint;
+use umbra::film::Film;
 use umbra::geometry::shapes::icosphere;
 use umbra::geometry::SceneGeometry;
 use umbra::scene::{Model, Scene};
+use umbra::transport::tri3::Tri3Mesh;
 use umbra::transport::{self, RenderOptions};
+use umbra::transport::{tri3_exact, MeasurementCtx};
 
 const LETTER: &str = include_str!("../scenes/meshes/letter_t.obj");
 const QUAD: &str =
@@ -72,10 +75,40 @@ fn perturb(scene: &Scene, p: Param, h: f32) -> Scene {
     s
 }
 
+/// tri3 in f64 through the generic reference path (finite differences of the f32
+/// kernel would drown in its rounding at small steps).
+fn tri3_reference(scene: &Scene, geom: &SceneGeometry, opts: &RenderOptions) -> Vec<f64> {
+    let film = Film::new(&scene.film);
+    let mesh = Tri3Mesh::build(scene, geom, opts.subdivision);
+    let mut out = vec![0.0; scene.num_measurements() * film.bins];
+    for (m, hist) in out.chunks_mut(film.bins).enumerate() {
+        let ctx = MeasurementCtx::new(scene, geom, &film, m);
+        tri3_exact::render_measurement(&mesh, &ctx, &film, opts.visibility, hist);
+    }
+    out
+}
+
+fn primal(scene: &Scene, geom: &SceneGeometry, opts: &RenderOptions) -> Vec<f64> {
+    match opts.model {
+        Model::Tri3 => tri3_reference(scene, geom, opts),
+        _ => {
+            let r = transport::render(scene, geom, opts, None).unwrap();
+            r.data.iter().map(|&v| v as f64).collect()
+        }
+    }
+}
+
+/// `Σ (H − T)²` in f64.
+fn l2(h: &[f64], target: &[f32]) -> f64 {
+    h.iter()
+        .zip(target)
+        .map(|(h, &t)| (h - t as f64).powi(2))
+        .sum()
+}
+
 fn loss_at(scene: &Scene, base: &SceneGeometry, opts: &RenderOptions, target: &[f32]) -> f64 {
     let geom = SceneGeometry::build(scene).with_sampling_of(base);
-    let r = transport::render(scene, &geom, opts, None).unwrap();
-    Loss::L2.evaluate(&r.data, target, r.bins()).unwrap().0
+    l2(&primal(scene, &geom, opts), target)
 }
 
 fn check(scene: &Scene, model: Model, spp: u32, params: usize) {
@@ -92,10 +125,12 @@ fn check(scene: &Scene, model: Model, spp: u32, params: usize) {
         o.mesh.positions.iter_mut().for_each(|p| p.z += 0.02);
     }
     let target = render(&moved, model, spp, 99).data;
-    let primal = transport::render(scene, &base, &opts, None).unwrap();
-    let (_, adj) = Loss::L2
-        .evaluate(&primal.data, &target, primal.bins())
-        .unwrap();
+    let h0 = primal(scene, &base, &opts);
+    let adj: Vec<f32> = h0
+        .iter()
+        .zip(&target)
+        .map(|(h, &t)| (2.0 * (h - t as f64)) as f32)
+        .collect();
     let grad = adjoint::gradient(scene, &base, &opts, &adj, None).unwrap();
 
     // Parameters: vertices used by a face, picked by a fixed LCG, then every albedo.
@@ -125,7 +160,11 @@ fn check(scene: &Scene, model: Model, spp: u32, params: usize) {
     }
     let mut rows = Vec::new();
     for &p in &ps {
-        let h = if p.1.is_some() { 3e-4 } else { 1e-2 };
+        let h = match (p.1, model) {
+            (None, _) => 1e-2,
+            (Some(_), Model::Tri3) => 1e-4,
+            (Some(_), _) => 3e-4,
+        };
         let fd = (loss_at(&perturb(scene, p, h), &base, &opts, &target)
             - loss_at(&perturb(scene, p, -h), &base, &opts, &target))
             / (2.0 * h as f64);
@@ -183,6 +222,64 @@ fn mc3_sphere_and_two_objects() {
         256,
         4,
     );
+}
+
+#[test]
+fn tri3_letter_sphere_and_two_objects() {
+    let sphere = sphere_obj();
+    for capture in ["single", "confocal"] {
+        check(
+            &scene_with(capture, &[("t.obj", LETTER, 0.7, [0.0, 0.0, 0.8])]),
+            Model::Tri3,
+            1,
+            6,
+        );
+    }
+    check(
+        &scene_with("confocal", &[("s.obj", &sphere, 0.6, [0.0; 3])]),
+        Model::Tri3,
+        1,
+        6,
+    );
+    check(
+        &scene_with(
+            "single",
+            &[
+                ("t.obj", LETTER, 0.7, [-0.2, 0.0, 0.8]),
+                ("q.obj", QUAD, 0.5, [0.3, 0.1, 0.0]),
+            ],
+        ),
+        Model::Tri3,
+        1,
+        4,
+    );
+}
+
+/// The f64 reference path and the eight-lane f32 kernel compute the same model.
+#[test]
+fn tri3_kernel_matches_its_f64_reference() {
+    let sphere = sphere_obj();
+    let scenes = [
+        scene_with("confocal", &[("t.obj", LETTER, 0.7, [0.0, 0.0, 0.8])]),
+        scene_with("single", &[("s.obj", &sphere, 0.6, [0.0; 3])]),
+    ];
+    for s in &scenes {
+        let geom = SceneGeometry::build(s);
+        let opts = RenderOptions {
+            model: Model::Tri3,
+            ..RenderOptions::from_scene(s)
+        };
+        let fast = transport::render(s, &geom, &opts, None).unwrap();
+        let reference = tri3_reference(s, &geom, &opts);
+        let (mut num, mut den) = (0.0, 0.0);
+        for (a, b) in fast.data.iter().zip(&reference) {
+            num += (*a as f64 - b).powi(2);
+            den += b * b;
+        }
+        let rel = (num / den).sqrt();
+        println!("kernel vs reference: {rel:.2e}");
+        assert!(den > 0.0 && rel < 2e-5, "{rel}");
+    }
 }
 
 #[test]

@@ -15,9 +15,13 @@
 //! differentiated while the discrete choice `p_t` stays fixed. Nothing is recorded per
 //! sample: memory is one 12-vector per hidden triangle per work chunk, whatever the spp.
 //!
-//! Supports: `mc3` (this commit), per-object and per-vertex albedo, box and Gaussian
-//! kernels (box: no time-shift term, so vertex gradients miss their largest part; a
-//! warning says so). Not yet: `tri3` and `path`. Does not: boundary terms of visibility
+//! `tri3` is deterministic: its adjoint is the exact derivative of the model
+//! ([`tri3_exact`]: the same generic formula in `f64` duals, through the pulse's closed
+//! form, so the pulse's time shift, its shape and the sub-triangle's area all move).
+//!
+//! Supports: `mc3` and `tri3`, per-object and per-vertex albedo, box and Gaussian
+//! kernels (box: no time-shift term for `mc3`, so vertex gradients miss their largest
+//! part; a warning says so). Not yet: `path`. Does not: boundary terms of visibility
 //! changes (silhouettes, occlusion between hidden objects): the interior derivative is
 //! biased there.
 
@@ -31,6 +35,8 @@ use crate::film::Film;
 use crate::geometry::SceneGeometry;
 use crate::scene::{KernelSpec, Model, Scene};
 use crate::transport::mc3::TRI_PARAMS;
+use crate::transport::tri3::Tri3Mesh;
+use crate::transport::tri3_exact;
 use crate::transport::{
     run_samples, Contribution, HiddenGrad, MeasurementCtx, Progress, RenderOptions, Sink, BLOCK_SPP,
 };
@@ -93,12 +99,13 @@ pub fn gradient(
     progress: Option<&Progress>,
 ) -> Result<Gradient> {
     let model = opts.model;
-    if model != Model::Mc3 {
+    if !matches!(model, Model::Mc3 | Model::Tri3) {
         return Err(Error::Invalid(format!(
-            "gradients: model {} is not supported yet (use mc3)",
+            "gradients: model {} is not supported yet (use tri3 or mc3)",
             model.name()
         )));
     }
+    let tri3 = (model == Model::Tri3).then(|| Tri3Mesh::build(scene, geom, opts.subdivision));
     let film = Film::new(&scene.film);
     let (measurements, bins) = (scene.num_measurements(), film.bins);
     if adjoint.len() != measurements * bins {
@@ -125,9 +132,24 @@ pub fn gradient(
                     break;
                 }
                 let ctx = MeasurementCtx::new(scene, geom, &film, m);
+                let adj = &adjoint[m * bins..(m + 1) * bins];
+                if let Some(mesh) = &tri3 {
+                    tri3_exact::adjoint_measurement(
+                        mesh,
+                        &ctx,
+                        &film,
+                        opts.visibility,
+                        adj,
+                        &mut tri_grad,
+                    );
+                    if let Some(p) = progress {
+                        p.work_done.fetch_add(mesh.len() as u64, Ordering::Relaxed);
+                    }
+                    continue;
+                }
                 let mut sink = AdjointSink {
                     film: &film,
-                    adjoint: &adjoint[m * bins..(m + 1) * bins],
+                    adjoint: adj,
                     tri_grad: &mut tri_grad,
                     scale: 1.0 / spp as f64,
                 };
@@ -187,12 +209,13 @@ fn scatter(scene: &Scene, geom: &SceneGeometry, tri_grad: &[[f64; TRI_PARAMS]]) 
     g
 }
 
-/// The warning for vertex gradients through a box kernel, if it applies.
-pub fn box_kernel_warning(scene: &Scene) -> Option<&'static str> {
-    matches!(scene.film.kernel, KernelSpec::Box).then_some(
-        "vertex gradients with the box kernel miss the time-of-flight term (a box histogram's \
-         derivative with respect to a path's length is zero): they are biased and usually \
-         small; use kernel = \"gaussian\" (sigma_opl) for vertex gradients. Albedo gradients \
-         are unaffected.",
+/// The warning for Monte Carlo vertex gradients through a box kernel, if it applies
+/// (`tri3`'s pulses have extent, so its box bins move smoothly and need no warning).
+pub fn box_kernel_warning(scene: &Scene, model: Model) -> Option<&'static str> {
+    (matches!(scene.film.kernel, KernelSpec::Box) && model != Model::Tri3).then_some(
+        "vertex gradients of a Monte Carlo model with the box kernel miss the time-of-flight \
+         term (a box histogram's derivative with respect to a path's length is zero): they \
+         are biased and usually small; use kernel = \"gaussian\" (sigma_opl), or the tri3 \
+         model. Albedo gradients are unaffected.",
     )
 }

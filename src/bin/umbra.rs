@@ -45,7 +45,7 @@ struct GradArgs {
     /// per object if there are several), `albedo` (one per object), `vertex_albedo[_<k>]`.
     #[arg(short, long, default_value = "grad.npz")]
     output: PathBuf,
-    /// Model: mc3 (tri3 and path are to come).
+    /// Model: tri3 or mc3 (path is to come).
     #[arg(long, default_value = "mc3")]
     model: String,
     /// Samples per measurement (overrides the scene).
@@ -404,7 +404,7 @@ fn grad(args: GradArgs) -> umbra::Result<()> {
     }
     opts.seed = args.seed.unwrap_or(opts.seed);
     let loss: Loss = args.loss.parse()?;
-    if let Some(w) = adjoint::box_kernel_warning(&scene) {
+    if let Some(w) = adjoint::box_kernel_warning(&scene, opts.model) {
         eprintln!("warning: {w}");
     }
     let pool = rayon::ThreadPoolBuilder::new()

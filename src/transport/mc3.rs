@@ -15,7 +15,7 @@
 //! Does not: interreflections (see `path`), or paths through the wall.
 
 use super::{sample_spot, Contribution, HiddenGrad, MeasurementCtx, PathVertex, Sink};
-use crate::adjoint::dual::{self, Dual, Real, V3};
+use crate::adjoint::dual::{self, Dual, Float, Real, V3};
 use crate::geometry::{HiddenTri, SurfaceKind};
 use crate::rng::Sampler;
 use glam::Vec3;
@@ -47,12 +47,13 @@ impl TriParams<f32> {
     }
 }
 
-impl TriParams<TriDual> {
+impl<T: Float> TriParams<Dual<T, TRI_PARAMS>> {
     /// Every corner coordinate and albedo a variable.
     pub fn variables(t: &HiddenTri) -> Self {
+        let var = |v: f32, i| Dual::var(T::c(v as f64), i);
         TriParams {
-            v: std::array::from_fn(|i| std::array::from_fn(|k| TriDual::var(t.v[i][k], 3 * i + k))),
-            albedo: std::array::from_fn(|i| TriDual::var(t.albedo[i], 9 + i)),
+            v: std::array::from_fn(|i| std::array::from_fn(|k| var(t.v[i][k], 3 * i + k))),
+            albedo: std::array::from_fn(|i| var(t.albedo[i], 9 + i)),
             two_sided: t.two_sided,
         }
     }

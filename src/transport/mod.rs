@@ -16,6 +16,7 @@ pub mod mc3;
 pub mod path;
 pub mod render;
 pub mod tri3;
+pub mod tri3_exact;
 pub mod tri3_kernel;
 
 pub use render::{render, Progress, RenderOptions, Renderer, Transient};

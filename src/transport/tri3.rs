@@ -67,6 +67,8 @@ pub struct Tri3Mesh {
     pub centroid: Vec<Vec3>,
     /// Per sub-triangle: flat index of the original triangle.
     pub parent: Vec<u32>,
+    /// Per sub-triangle: barycentrics `(b1, b2)` of its corners in the original triangle.
+    pub corner_bary: Vec<[[f32; 2]; 3]>,
     /// Per original triangle: its centroid (for `centroid` visibility).
     pub parent_centroid: Vec<Vec3>,
     /// The sub-triangles packed for the inner loop.
@@ -116,6 +118,33 @@ impl Tri3Mesh {
         self.tris.len()
     }
 
+    /// `centroid` visibility: for every original triangle, whether its centroid sees both
+    /// wall points of the measurement (left empty for the other modes).
+    pub fn parent_visibility(&self, ctx: &MeasurementCtx, v: Visibility, out: &mut Vec<bool>) {
+        out.clear();
+        if v == Visibility::Centroid {
+            let (x_l, x_s) = (ctx.x_l, ctx.x_s);
+            out.extend(
+                self.parent_centroid
+                    .iter()
+                    .map(|&c| !ctx.geom.occluded(c, x_l) && !ctx.geom.occluded(c, x_s)),
+            );
+        }
+    }
+
+    /// Whether sub-triangle `k` counts for the measurement, under visibility mode `v`
+    /// (`parents` from [`Tri3Mesh::parent_visibility`]).
+    pub fn visible(&self, k: usize, ctx: &MeasurementCtx, v: Visibility, parents: &[bool]) -> bool {
+        match v {
+            Visibility::None => true,
+            Visibility::Centroid => parents[self.parent[k] as usize],
+            Visibility::Subtriangle => {
+                let c = self.centroid[k];
+                !ctx.geom.occluded(c, ctx.x_l) && !ctx.geom.occluded(c, ctx.x_s)
+            }
+        }
+    }
+
     pub fn is_empty(&self) -> bool {
         self.tris.is_empty()
     }
@@ -132,9 +161,10 @@ impl Tri3Mesh {
     ) {
         let n = 1u32 << level;
         let mut grid = Vec::with_capacity(((n + 1) * (n + 2) / 2) as usize);
+        let bary_of = |i: u32, j: u32| [i as f32 / n as f32, j as f32 / n as f32];
         for j in 0..=n {
             for i in 0..=(n - j) {
-                let bary = [i as f32 / n as f32, j as f32 / n as f32];
+                let bary = bary_of(i, j);
                 let p = t.point(bary);
                 let brdf = t.albedo_at(bary) * FRAC_1_PI;
                 let key = (object, p.to_array().map(f32::to_bits), brdf.to_bits());
@@ -152,14 +182,16 @@ impl Tri3Mesh {
         let vid = |i: u32, j: u32| grid[row(j) + i as usize];
         for j in 0..n {
             for i in 0..(n - j) {
-                let up = [vid(i, j), vid(i + 1, j), vid(i, j + 1)];
+                let up = [(i, j), (i + 1, j), (i, j + 1)];
                 // The "down" triangle exists only inside the grid's diagonal.
                 let tris = if i + j + 1 < n {
-                    &[up, [vid(i + 1, j), vid(i + 1, j + 1), vid(i, j + 1)]][..]
+                    &[up, [(i + 1, j), (i + 1, j + 1), (i, j + 1)]][..]
                 } else {
                     &[up][..]
                 };
-                for &tri in tris {
+                for &ij in tris {
+                    let tri = ij.map(|(i, j)| vid(i, j));
+                    self.corner_bary.push(ij.map(|(i, j)| bary_of(i, j)));
                     let [pa, pb, pc] = tri.map(|k| self.vertices[k as usize]);
                     self.tris.push(tri);
                     self.normal.push(t.n);
@@ -195,15 +227,7 @@ pub fn render_measurement(
     scratch: &mut Tri3Scratch,
     out: &mut [f32],
 ) {
-    let (x_l, x_s) = (ctx.x_l, ctx.x_s);
-    if visibility == Visibility::Centroid {
-        scratch.visible.clear();
-        scratch.visible.extend(
-            mesh.parent_centroid
-                .iter()
-                .map(|&c| !ctx.geom.occluded(c, x_l) && !ctx.geom.occluded(c, x_s)),
-        );
-    }
+    mesh.parent_visibility(ctx, visibility, &mut scratch.visible);
     let bins = film.bins;
     let gaussian = matches!(film.kernel, KernelSpec::Gaussian { .. });
     if gaussian {
@@ -225,15 +249,7 @@ pub fn render_measurement(
         if visibility != Visibility::None {
             for j in 0..W {
                 if pulses.live[j] {
-                    let k = b * W + j;
-                    pulses.live[j] = match visibility {
-                        Visibility::None => true,
-                        Visibility::Centroid => scratch.visible[mesh.parent[k] as usize],
-                        Visibility::Subtriangle => {
-                            let c = mesh.centroid[k];
-                            !ctx.geom.occluded(c, x_l) && !ctx.geom.occluded(c, x_s)
-                        }
-                    };
+                    pulses.live[j] = mesh.visible(b * W + j, ctx, visibility, &scratch.visible);
                 }
             }
         }

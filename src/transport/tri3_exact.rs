@@ -1,0 +1,146 @@
+//! The `tri3` model of one (measurement, sub-triangle) pair written once over [`Real`]:
+//! in `f64` it is the reference that the eight-lane `f32` kernel ([`super::tri3_kernel`])
+//! is tested against; in [`Dual`] numbers with respect to the original triangle's corners
+//! and corner albedos it is the model's exact derivative (the `tri3` adjoint), the
+//! pulse's time shift and the area factor included.
+//!
+//! Same equations as the kernel (module doc of [`super::tri3`]): corners of the
+//! sub-triangle at barycentrics `β` of the original triangle `(v0, v1, v2)`, OPL
+//! `τ_i = |x_l − v_i| + |v_i − x_s| + legs`, corner weight
+//! `w_i = (ρ_i/π) |p_l p_s| c_l c_s / (r_l² r_s²)²` (`p` the plane terms, `c` the wall
+//! terms), the area of the sub-triangle, the curvature shift `0.75 (τ(c) − mean τ_i)`,
+//! and the pulse through the film's kernel ([`Film::triangle_bins`]).
+
+use super::mc3::{TriParams, TRI_PARAMS};
+use super::tri3::Tri3Mesh;
+use super::MeasurementCtx;
+use crate::adjoint::dual::{self, Dual, Real};
+use crate::film::Film;
+use std::f64::consts::FRAC_1_PI;
+
+/// Derivatives with respect to the original triangle's [`TRI_PARAMS`], in `f64`.
+pub type TriDual64 = Dual<f64, TRI_PARAMS>;
+
+/// Sub-triangle `k` of `mesh` for the measurement `ctx`, whose original triangle is
+/// `parent`: calls `add(bin, content)` for every bin its pulse reaches, unscaled by the
+/// laser power and the wall's BRDF (`ctx.power f_wall²`, applied by the caller).
+/// Visibility is the caller's.
+pub fn pair_bins<R: Real>(
+    mesh: &Tri3Mesh,
+    k: usize,
+    parent: &TriParams<R>,
+    ctx: &MeasurementCtx,
+    film: &Film,
+    add: impl FnMut(usize, R),
+) {
+    let corner_bary = mesh.corner_bary[k];
+    let corners = corner_bary.map(|b| parent.point(b));
+    let brdf = corner_bary.map(|b| parent.albedo_at(b).s(FRAC_1_PI));
+    let (x_l, x_s) = (dual::constant::<R>(ctx.x_l), dual::constant::<R>(ctx.x_s));
+    let n_w = dual::constant::<R>(ctx.n_w);
+    let legs = R::c((ctx.opl_laser_leg(ctx.x_l) + ctx.opl_sensor_leg) as f64);
+    let (n, _) = parent.normal_area();
+    // The plane terms r cos θ at x, the same at every corner of the (planar) triangle.
+    let p_l = dual::dot(n, dual::sub(x_l, corners[0]));
+    let p_s = dual::dot(n, dual::sub(x_s, corners[0]));
+    let facing = if parent.two_sided {
+        p_l.v() * p_s.v() > 0.0
+    } else {
+        p_l.v() > 0.0 && p_s.v() > 0.0
+    };
+    if !facing {
+        return;
+    }
+    let plane = (p_l * p_s).abs();
+    let mut tau = [R::c(0.0); 3];
+    let mut w = [R::c(0.0); 3];
+    for i in 0..3 {
+        let (d_l, d_s) = (dual::sub(x_l, corners[i]), dual::sub(x_s, corners[i]));
+        let (r2_l, r2_s) = (dual::dot(d_l, d_l), dual::dot(d_s, d_s));
+        tau[i] = r2_l.sqrt() + r2_s.sqrt() + legs;
+        let (c_l, c_s) = (-dual::dot(n_w, d_l), -dual::dot(n_w, d_s));
+        if c_l.v() > 0.0 && c_s.v() > 0.0 {
+            let r4 = r2_l * r2_s;
+            w[i] = brdf[i] * plane * c_l * c_s / (r4 * r4);
+        }
+    }
+    if w.iter().all(|w| w.v() <= 0.0) {
+        return;
+    }
+    let sub = TriParams {
+        v: corners,
+        albedo: brdf,
+        two_sided: parent.two_sided,
+    };
+    let (_, area) = sub.normal_area();
+    let third = 1.0 / 3.0;
+    let centroid: dual::V3<R> =
+        std::array::from_fn(|a| (corners[0][a] + corners[1][a] + corners[2][a]).s(third));
+    let tau_c =
+        dual::length(dual::sub(x_l, centroid)) + dual::length(dual::sub(x_s, centroid)) + legs;
+    let shift = (tau_c - (tau[0] + tau[1] + tau[2]).s(third)).s(0.75);
+    film.triangle_bins(tau.map(|t| t + shift), w, area, add);
+}
+
+impl TriParams<f64> {
+    /// The original triangle `t` in `f64` constants.
+    pub fn constant64(t: &crate::geometry::HiddenTri) -> Self {
+        TriParams {
+            v: t.v.map(|v| v.to_array().map(f64::from)),
+            albedo: t.albedo.map(f64::from),
+            two_sided: t.two_sided,
+        }
+    }
+}
+
+/// The `tri3` transient of measurement `ctx` in `f64` through [`pair_bins`] (the
+/// reference for the eight-lane kernel): the same model, slower, without its `f32`
+/// rounding. Adds into `hist` (`bins` values).
+pub fn render_measurement(
+    mesh: &Tri3Mesh,
+    ctx: &MeasurementCtx,
+    film: &Film,
+    visibility: crate::scene::Visibility,
+    hist: &mut [f64],
+) {
+    let mut parents = Vec::new();
+    mesh.parent_visibility(ctx, visibility, &mut parents);
+    let scale = (ctx.power * ctx.f_wall * ctx.f_wall) as f64;
+    for k in 0..mesh.len() {
+        if mesh.visible(k, ctx, visibility, &parents) {
+            let parent = TriParams::constant64(&ctx.geom.hidden[mesh.parent[k] as usize]);
+            pair_bins(mesh, k, &parent, ctx, film, |b, v: f64| {
+                hist[b] += scale * v
+            });
+        }
+    }
+}
+
+/// The `tri3` adjoint of measurement `ctx`: adds `Σ_b adjoint_b dH_b/dθ` for every
+/// original triangle's local parameters θ (corners, corner albedos) into `tri_grad`.
+pub fn adjoint_measurement(
+    mesh: &Tri3Mesh,
+    ctx: &MeasurementCtx,
+    film: &Film,
+    visibility: crate::scene::Visibility,
+    adjoint: &[f32],
+    tri_grad: &mut [[f64; TRI_PARAMS]],
+) {
+    let mut parents = Vec::new();
+    mesh.parent_visibility(ctx, visibility, &mut parents);
+    let scale = (ctx.power * ctx.f_wall * ctx.f_wall) as f64;
+    for k in 0..mesh.len() {
+        if !mesh.visible(k, ctx, visibility, &parents) {
+            continue;
+        }
+        let p = mesh.parent[k] as usize;
+        let parent = TriParams::<TriDual64>::variables(&ctx.geom.hidden[p]);
+        let acc = &mut tri_grad[p];
+        pair_bins(mesh, k, &parent, ctx, film, |b, v: TriDual64| {
+            let a = adjoint[b] as f64 * scale;
+            if a != 0.0 {
+                acc.iter_mut().zip(v.d).for_each(|(g, d)| *g += a * d);
+            }
+        });
+    }
+}

@@ -25,6 +25,7 @@
 //! changes (silhouettes, occlusion between hidden objects): the interior derivative is
 //! biased there.
 
+pub mod check;
 pub mod dual;
 pub mod loss;
 

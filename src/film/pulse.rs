@@ -25,6 +25,10 @@ use crate::scene::KernelSpec;
 /// their weighted mean: the shape is then below f64's resolution of the CDF.
 const NARROW: f64 = 1e-7;
 
+/// Through a Gaussian kernel, pieces narrower than this fraction of σ are integrated
+/// by quadrature rather than in closed form.
+const NARROW_FOR_GAUSS: f64 = 1e-2;
+
 /// A triangle's corners sorted by OPL, with the constants of its two cubic pieces.
 /// Generic over [`Real`], so the same code yields bin values (`f64`) and their
 /// derivatives (the `tri3` adjoint).
@@ -42,8 +46,11 @@ struct Pulse<R> {
 }
 
 impl<R: Real> Pulse<R> {
+    /// `narrow`: pieces `[t0, t1]`, `[t1, t2]` narrower than this (m) are dropped (their
+    /// mass goes to the other piece): a near-tie of two corners' OPLs would otherwise put
+    /// the rounding noise of their difference in a denominator.
     #[inline]
-    fn new(t: [R; 3], w: [R; 3], area: R) -> Self {
+    fn new(t: [R; 3], w: [R; 3], area: R, narrow: f64) -> Self {
         // Sorting network on (t, w) pairs.
         let (mut t, mut w) = (t, w);
         let mut swap = |i: usize, j: usize| {
@@ -62,7 +69,7 @@ impl<R: Real> Pulse<R> {
         let inv_span = one / (t2 - t0);
         let third_area = area.s(1.0 / 3.0);
         let zero = R::c(0.0);
-        let (ka, ga) = if t1.v() > t0.v() {
+        let (ka, ga) = if t1.v() - t0.v() > narrow {
             let inv = one / (t1 - t0);
             (
                 third_area * inv * inv_span,
@@ -71,7 +78,7 @@ impl<R: Real> Pulse<R> {
         } else {
             (zero, zero)
         };
-        let (kb, gb) = if t2.v() > t1.v() {
+        let (kb, gb) = if t2.v() - t1.v() > narrow {
             let inv = one / (t2 - t1);
             (
                 third_area * inv * inv_span,
@@ -109,30 +116,65 @@ impl<R: Real> Pulse<R> {
         let ([t0, t1, t2], [w0, _, w2]) = (self.t, self.w);
         let (xr, inv_s, s) = (R::c(x), 1.0 / sigma, sigma);
         let mut h = self.total * cap_phi((xr - t2).s(inv_s));
+        // A piece much narrower than σ: its closed form below subtracts terms
+        // ~ (span/δ)² larger than the result (~ (span/δ)³ in the derivative), so it is
+        // integrated by 3-point Gauss–Legendre instead: W is cubic and φ varies by
+        // (δ/σ)² across it, so the rule's error is ~ (δ/σ)⁶.
+        let narrow = NARROW_FOR_GAUSS * sigma;
         // Piece [t0, t1]: W = ka (3 w0 z² + ga z³), z = t − t0 = d − σu.
-        if t1.v() > t0.v() {
+        if self.ka.v() != 0.0 {
             let (k, g, d) = (self.ka, self.ga, xr - t0);
-            let e = [
-                k * (w0.s(3.0) * d * d + g * d * d * d),
-                k * (w0.s(-6.0) * d.s(s) - g.s(3.0) * d * d.s(s)),
-                k * (w0.s(3.0 * s * s) + g.s(3.0 * s * s) * d),
-                -(k * g).s(s * s * s),
-            ];
-            h = h + moments(e, (xr - t1).s(inv_s), (xr - t0).s(inv_s));
+            if t1.v() - t0.v() < narrow {
+                let (nodes, half) = gauss_legendre_nodes(t0, t1);
+                for (t, weight) in nodes.into_iter().zip(GL_WEIGHTS) {
+                    let z = t - t0;
+                    let dens = phi((xr - t).s(inv_s));
+                    h = h + (half * k * z * z * (w0.s(3.0) + g * z) * dens).s(weight * inv_s);
+                }
+            } else {
+                let e = [
+                    k * (w0.s(3.0) * d * d + g * d * d * d),
+                    k * (w0.s(-6.0) * d.s(s) - g.s(3.0) * d * d.s(s)),
+                    k * (w0.s(3.0 * s * s) + g.s(3.0 * s * s) * d),
+                    -(k * g).s(s * s * s),
+                ];
+                h = h + moments(e, (xr - t1).s(inv_s), (xr - t0).s(inv_s));
+            }
         }
         // Piece [t1, t2]: W = total − kb (3 w2 y² + gb y³), y = t2 − t = e + σu.
-        if t2.v() > t1.v() {
+        if self.kb.v() != 0.0 {
             let (k, g, e_) = (self.kb, self.gb, t2 - xr);
-            let e = [
-                self.total - k * (w2.s(3.0) * e_ * e_ + g * e_ * e_ * e_),
-                -(k * (w2.s(6.0) * e_.s(s) + g.s(3.0) * e_ * e_.s(s))),
-                -(k * (w2.s(3.0 * s * s) + g.s(3.0 * s * s) * e_)),
-                -(k * g).s(s * s * s),
-            ];
-            h = h + moments(e, (xr - t2).s(inv_s), (xr - t1).s(inv_s));
+            if t2.v() - t1.v() < narrow {
+                let (nodes, half) = gauss_legendre_nodes(t1, t2);
+                for (t, weight) in nodes.into_iter().zip(GL_WEIGHTS) {
+                    let y = t2 - t;
+                    let dens = phi((xr - t).s(inv_s));
+                    let w_t = self.total - k * y * y * (w2.s(3.0) + g * y);
+                    h = h + (half * w_t * dens).s(weight * inv_s);
+                }
+            } else {
+                let e = [
+                    self.total - k * (w2.s(3.0) * e_ * e_ + g * e_ * e_ * e_),
+                    -(k * (w2.s(6.0) * e_.s(s) + g.s(3.0) * e_ * e_.s(s))),
+                    -(k * (w2.s(3.0 * s * s) + g.s(3.0 * s * s) * e_)),
+                    -(k * g).s(s * s * s),
+                ];
+                h = h + moments(e, (xr - t2).s(inv_s), (xr - t1).s(inv_s));
+            }
         }
         h
     }
+}
+
+/// 3-point Gauss–Legendre weights on [−1, 1].
+const GL_WEIGHTS: [f64; 3] = [5.0 / 9.0, 8.0 / 9.0, 5.0 / 9.0];
+
+/// The 3-point Gauss–Legendre nodes on `[a, b]` and the half width: `∫_a^b f ≈
+/// half Σ GL_WEIGHTS_i f(node_i)`.
+fn gauss_legendre_nodes<R: Real>(a: R, b: R) -> ([R; 3], R) {
+    const X: f64 = 0.774_596_669_241_483_4; // √(3/5)
+    let (mid, half) = ((a + b).s(0.5), (b - a).s(0.5));
+    ([mid - half.s(X), mid, mid + half.s(X)], half)
 }
 
 /// `∫_{lo}^{hi} Σ_k e_k u^k φ(u) du`.
@@ -162,8 +204,6 @@ impl Film {
         area: R,
         mut add: impl FnMut(usize, R),
     ) {
-        let p = Pulse::new(t, w, area);
-        let [t0, t1, t2] = p.t;
         let (sigma, margin, scale) = match self.kernel {
             KernelSpec::Box => (0.0, 0.0, self.width),
             KernelSpec::Gaussian { sigma_opl } => {
@@ -171,6 +211,8 @@ impl Film {
                 (s, GAUSS_CUTOFF * s, s.min(self.width))
             }
         };
+        let p = Pulse::new(t, w, area, NARROW * scale);
+        let [t0, t1, t2] = p.t;
         if t2.v() - t0.v() <= NARROW * scale {
             let wsum = p.w[0] + p.w[1] + p.w[2];
             let mean = if wsum.v() != 0.0 {

@@ -52,9 +52,7 @@ fn pulse_derivative_near_ties() {
         let mut g = [0.0; 3];
         let td: [Dual<f64, 3>; 3] = std::array::from_fn(|i| Dual::var(t[i], i));
         film.triangle_bins(td, [0.3, 0.9, 0.5].map(Dual::c), Dual::c(0.01), |b, v| {
-            for i in 0..3 {
-                g[i] += adj[b] * v.d[i];
-            }
+            g.iter_mut().zip(v.d).for_each(|(g, d)| *g += adj[b] * d);
         });
         for i in 0..3 {
             let h = 1e-6;

@@ -291,6 +291,32 @@ fn cli_grad_writes_the_npz_and_refuses_a_wrong_shape() {
         (LETTER.lines().filter(|l| l.starts_with("v ")).count(), 3)
     );
     assert!(v.iter().all(|x| x.is_finite()) && v.iter().any(|&x| x != 0.0));
+    // gradcheck: passes at the default tolerance, fails (exit code 1) at an absurd one.
+    let out = run(&[
+        "gradcheck",
+        scene_file.to_str().unwrap(),
+        "--params",
+        "2",
+        "--h",
+        "3e-4",
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("| object 0 albedo |"), "{stdout}");
+    let out = run(&[
+        "gradcheck",
+        scene_file.to_str().unwrap(),
+        "--params",
+        "2",
+        "--tolerance",
+        "1e-12",
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("gradcheck failed"));
     // A target of another shape is refused with its file named.
     let wrong = dir.join("w.npy");
     ndarray_npy::write_npy(&wrong, &ndarray::Array3::<f32>::zeros((2, 2, 7))).unwrap();

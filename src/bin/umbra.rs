@@ -29,6 +29,9 @@ enum Command {
     /// Gradient of a loss between the render and a measured transient with respect to the
     /// hidden meshes' vertex positions and albedos (path replay).
     Grad(GradArgs),
+    /// Check the adjoint gradient against central finite differences with common random
+    /// numbers on a few random parameters; exits non-zero above the tolerance.
+    Gradcheck(GradcheckArgs),
     /// Built-in benchmarks: `tri3` (speed on the 10k-triangle reference case and the
     /// error-vs-subdivision table).
     Bench(BenchArgs),
@@ -58,6 +61,37 @@ struct GradArgs {
     #[arg(long, default_value = "l2")]
     loss: String,
     /// Worker threads (default: all cores). The output does not depend on it.
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Set a Mitsuba XML `$name` parameter, e.g. -D spp=64.
+    #[arg(short = 'D', value_name = "NAME=VALUE")]
+    define: Vec<String>,
+}
+
+#[derive(clap::Args)]
+struct GradcheckArgs {
+    /// Scene file: Umbra TOML (.toml) or mitransient-style Mitsuba XML (.xml).
+    scene: PathBuf,
+    /// Model: tri3 or mc3.
+    #[arg(long, default_value = "mc3")]
+    model: String,
+    /// Vertex coordinates checked per object (plus each object's albedo).
+    #[arg(long, default_value_t = 6)]
+    params: usize,
+    /// Finite-difference steps for vertex coordinates (m), comma-separated; albedo steps
+    /// are 30x these.
+    #[arg(long, value_delimiter = ',', default_value = "1e-4,3e-4,1e-3")]
+    h: Vec<f64>,
+    /// Largest accepted relative error (against max(|fd|, 2 % of the largest |fd|)).
+    #[arg(long, default_value_t = 0.01)]
+    tolerance: f64,
+    /// Samples per measurement (overrides the scene).
+    #[arg(long)]
+    spp: Option<u32>,
+    /// Random seed (overrides the scene), for the samples and the parameter picks.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
     /// Set a Mitsuba XML `$name` parameter, e.g. -D spp=64.
@@ -142,6 +176,7 @@ fn main() {
         Command::Render(args) => render(args),
         Command::Bench(args) => bench(args),
         Command::Grad(args) => grad(args),
+        Command::Gradcheck(args) => gradcheck(args),
     };
     if let Err(e) = result {
         eprintln!("error: {e}");
@@ -444,5 +479,71 @@ fn grad(args: GradArgs) -> umbra::Result<()> {
         t0.elapsed().as_secs_f64(),
         args.output.display()
     );
+    Ok(())
+}
+
+fn gradcheck(args: GradcheckArgs) -> umbra::Result<()> {
+    use umbra::adjoint::{self, check};
+    let scene = load_scene(Some(&args.scene), &args.define)?;
+    let mut opts = RenderOptions::from_scene(&scene);
+    opts.model = Model::parse(&args.model).ok_or_else(|| {
+        umbra::Error::Invalid(format!("--model: '{}' is not one of tri3, mc3", args.model))
+    })?;
+    if let Some(s) = args.spp {
+        opts.spp = s.max(1);
+    }
+    opts.seed = args.seed.unwrap_or(opts.seed);
+    if args.h.iter().any(|h| !(h.is_finite() && *h > 0.0)) {
+        return Err(umbra::Error::Invalid("--h: steps must be > 0".into()));
+    }
+    if let Some(w) = adjoint::box_kernel_warning(&scene, opts.model) {
+        eprintln!("warning: {w}");
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(args.threads.unwrap_or(0))
+        .build()
+        .map_err(|e| umbra::Error::Invalid(format!("--threads: {e}")))?;
+    let params = check::pick_params(&scene, args.params, opts.seed);
+    let rows = pool.install(|| check::run(&scene, &opts, &params, &args.h))?;
+    let largest = rows
+        .iter()
+        .flat_map(|r| r.fd.iter().map(|f| f.1.abs()))
+        .fold(0.0, f64::max);
+    let floor = 0.02 * largest;
+    print!("| parameter | adjoint |");
+    for h in &args.h {
+        print!(" fd h={h:e} |");
+    }
+    println!(" best rel. error |");
+    println!("|---|---|{}---|", "---|".repeat(args.h.len()));
+    let mut worst = 0.0f64;
+    for r in &rows {
+        print!("| {} | {:.6e} |", r.param, r.adjoint);
+        for (_, fd) in &r.fd {
+            print!(" {fd:.6e} |");
+        }
+        let e = r.error(floor);
+        worst = worst.max(e);
+        println!(" {e:.2e} |");
+    }
+    println!(
+        "{} parameters, model {}, {} spp; worst relative error {worst:.2e} (tolerance {:.0e})",
+        rows.len(),
+        opts.model.name(),
+        opts.spp,
+        args.tolerance
+    );
+    if largest == 0.0 {
+        return Err(umbra::Error::Invalid(
+            "gradcheck: every finite difference is zero (nothing in the scene reaches the film?)"
+                .into(),
+        ));
+    }
+    if worst > args.tolerance {
+        return Err(umbra::Error::Invalid(format!(
+            "gradcheck failed: relative error {worst:.2e} above the tolerance {:.0e}",
+            args.tolerance
+        )));
+    }
     Ok(())
 }

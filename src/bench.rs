@@ -189,3 +189,91 @@ pub fn rel_l2(a: &[f32], b: &[f32]) -> f64 {
     let n: f64 = b.iter().map(|y| (*y as f64).powi(2)).sum();
     (d / n).sqrt()
 }
+
+/// The gradient benchmark's scene: the default letter T (72 triangles, moved off the
+/// scan's symmetry lines), confocal 16 x 16, 512 bins of 4 mm through a Gaussian of
+/// σ = 6 mm.
+pub fn grad_scene() -> Result<Scene> {
+    let mut s = crate::scene::default::default_scene()?;
+    s.scan.nx = 16;
+    s.scan.ny = 16;
+    s.film.kernel = crate::scene::KernelSpec::Gaussian { sigma_opl: 0.006 };
+    for o in &mut s.objects {
+        o.mesh
+            .positions
+            .iter_mut()
+            .for_each(|p| *p += Vec3::new(0.0123, 0.0071, 0.0));
+    }
+    Ok(s)
+}
+
+/// Forward and adjoint times of one model at one spp.
+pub struct GradTiming {
+    pub model: Model,
+    pub spp: u32,
+    /// Median seconds of the forward render.
+    pub forward: f64,
+    /// Median seconds of the adjoint pass alone (given `dLoss/dH`).
+    pub adjoint: f64,
+}
+
+/// Times forward and adjoint passes, interleaved, `reps` times each after a warm-up;
+/// the adjoint histogram is that of an L2 loss against the scene moved 2 cm.
+pub fn grad_timing(scene: &Scene, model: Model, spp: u32, reps: usize) -> Result<GradTiming> {
+    use crate::adjoint::{check, gradient};
+    let geom = SceneGeometry::build(scene);
+    let opts = RenderOptions {
+        model,
+        spp,
+        ..RenderOptions::from_scene(scene)
+    };
+    let (target, _, _) = check::setup(scene, &opts)?;
+    let r = Renderer::new(scene, &geom, &opts)?;
+    let primal = r.render(None)?;
+    let (_, adj) = crate::adjoint::Loss::L2.evaluate(&primal.data, &target, primal.bins())?;
+    gradient(scene, &geom, &opts, &adj, None)?;
+    let (mut fw, mut ad) = (Vec::new(), Vec::new());
+    for _ in 0..reps.max(1) {
+        let t = Instant::now();
+        std::hint::black_box(r.render(None)?);
+        fw.push(t.elapsed().as_secs_f64());
+        let t = Instant::now();
+        std::hint::black_box(gradient(scene, &geom, &opts, &adj, None)?);
+        ad.push(t.elapsed().as_secs_f64());
+    }
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    Ok(GradTiming {
+        model,
+        spp,
+        forward: median(fw),
+        adjoint: median(ad),
+    })
+}
+
+/// Peak resident memory of this process (kB), from `/proc/self/status` (`VmHWM`).
+pub fn peak_rss_kb() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    line.split_whitespace().nth(1)?.parse().ok()
+}
+
+/// One adjoint pass of `model` at `spp` on [`grad_scene`] (for a fresh process to report
+/// its peak memory).
+pub fn grad_pass(model: Model, spp: u32) -> Result<()> {
+    let scene = grad_scene()?;
+    let geom = SceneGeometry::build(&scene);
+    let opts = RenderOptions {
+        model,
+        spp,
+        ..RenderOptions::from_scene(&scene)
+    };
+    let n = scene.num_measurements() * scene.film.temporal_bins as usize;
+    let adj: Vec<f32> = (0..n)
+        .map(|i| ((i * 37 % 101) as f32 - 50.0) * 1e-2)
+        .collect();
+    std::hint::black_box(crate::adjoint::gradient(&scene, &geom, &opts, &adj, None)?);
+    Ok(())
+}

@@ -33,7 +33,8 @@ enum Command {
     /// numbers on a few random parameters; exits non-zero above the tolerance.
     Gradcheck(GradcheckArgs),
     /// Built-in benchmarks: `tri3` (speed on the 10k-triangle reference case and the
-    /// error-vs-subdivision table).
+    /// error-vs-subdivision table); `grad` (adjoint against forward time, and the
+    /// adjoint's peak memory against spp).
     Bench(BenchArgs),
 }
 
@@ -112,6 +113,12 @@ struct BenchArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
+    /// grad-pass: the model.
+    #[arg(long)]
+    model: Option<String>,
+    /// grad-pass: samples per measurement.
+    #[arg(long)]
+    spp: Option<u32>,
 }
 
 #[derive(clap::Args)]
@@ -357,9 +364,9 @@ fn render(args: RenderArgs) -> umbra::Result<()> {
 
 fn bench(args: BenchArgs) -> umbra::Result<()> {
     use umbra::bench;
-    if args.which != "tri3" {
+    if !matches!(args.which.as_str(), "tri3" | "grad" | "grad-pass") {
         return Err(umbra::Error::Invalid(format!(
-            "bench: unknown benchmark '{}' (available: tri3)",
+            "bench: unknown benchmark '{}' (available: tri3, grad)",
             args.which
         )));
     }
@@ -370,6 +377,17 @@ fn bench(args: BenchArgs) -> umbra::Result<()> {
     let pool = b
         .build()
         .map_err(|e| umbra::Error::Invalid(format!("thread pool: {e}")))?;
+    if args.which == "grad-pass" {
+        // Child of `bench grad`: one adjoint pass, then its peak memory.
+        let model = Model::parse(args.model.as_deref().unwrap_or("mc3"))
+            .ok_or_else(|| umbra::Error::Invalid("--model: tri3 or mc3".into()))?;
+        pool.install(|| bench::grad_pass(model, args.spp.unwrap_or(1)))?;
+        println!("{}", bench::peak_rss_kb().unwrap_or(0));
+        return Ok(());
+    }
+    if args.which == "grad" {
+        return pool.install(|| bench_grad(&args));
+    }
     pool.install(|| {
         let threads = rayon::current_num_threads();
         let scene = bench::tri3_speed_scene()?;
@@ -545,5 +563,67 @@ fn gradcheck(args: GradcheckArgs) -> umbra::Result<()> {
             args.tolerance
         )));
     }
+    Ok(())
+}
+
+fn bench_grad(args: &BenchArgs) -> umbra::Result<()> {
+    use umbra::bench;
+    let scene = bench::grad_scene()?;
+    let threads = rayon::current_num_threads();
+    println!("## Gradient pass: time against the forward pass ({threads} threads)\n");
+    println!(
+        "Letter T (72 triangles), confocal 16 x 16, {} bins of {} mm, Gaussian kernel sigma 6 mm; \
+         median of {} interleaved repetitions. The adjoint pass is given dLoss/dH (L2 against the \
+         letter moved 2 cm); it reruns the sampling with derivatives.\n",
+        scene.film.temporal_bins,
+        scene.film.bin_width_opl * 1000.0,
+        args.reps
+    );
+    println!("| model | spp | forward s | adjoint s | adjoint / forward |");
+    println!("|---|---|---|---|---|");
+    for (model, spp) in [(Model::Mc3, 64), (Model::Mc3, 512), (Model::Tri3, 1)] {
+        let t = bench::grad_timing(&scene, model, spp, args.reps)?;
+        println!(
+            "| {} | {} | {:.4} | {:.4} | {:.2} |",
+            model.name(),
+            if model == Model::Tri3 {
+                "-".to_string()
+            } else {
+                spp.to_string()
+            },
+            t.forward,
+            t.adjoint,
+            t.adjoint / t.forward
+        );
+    }
+    println!("\n## Gradient pass: peak memory against spp (mc3, a fresh process each)\n");
+    println!("| spp | peak RSS MB |");
+    println!("|---|---|");
+    let exe = std::env::current_exe().map_err(|e| umbra::Error::Invalid(e.to_string()))?;
+    let mut peaks = Vec::new();
+    for spp in [1u32, 16, 256, 4096] {
+        let out = std::process::Command::new(&exe)
+            .args([
+                "bench",
+                "grad-pass",
+                "--model",
+                "mc3",
+                "--spp",
+                &spp.to_string(),
+            ])
+            .args(["--threads", &threads.to_string()])
+            .output()
+            .map_err(|e| umbra::Error::Invalid(format!("bench grad-pass: {e}")))?;
+        let kb: f64 = String::from_utf8_lossy(&out.stdout)
+            .trim()
+            .parse()
+            .unwrap_or(f64::NAN);
+        peaks.push(kb);
+        println!("| {spp} | {:.1} |", kb / 1024.0);
+    }
+    let (lo, hi) = peaks
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |(l, h), &p| (l.min(p), h.max(p)));
+    println!("\nLargest / smallest: {:.3}", hi / lo);
     Ok(())
 }

@@ -42,9 +42,14 @@ enum Command {
 struct GradArgs {
     /// Scene file: Umbra TOML (.toml) or mitransient-style Mitsuba XML (.xml).
     scene: PathBuf,
-    /// The measured transient (.npy, the render's shape).
+    /// The measured transient (.npy, the render's shape): the loss is --loss against it.
+    #[arg(long, required_unless_present = "adjoint", conflicts_with = "adjoint")]
+    target: Option<PathBuf>,
+    /// Instead of a target and a loss: the adjoint histogram dLoss/dH itself (.npy, the
+    /// render's shape), for a loss of your own; `loss` is then written as 0 and no
+    /// forward render is done.
     #[arg(long)]
-    target: PathBuf,
+    adjoint: Option<PathBuf>,
     /// Output .npz: `loss`, `vertices` (V x 3, rows in the OBJ's v order; `vertices_<k>`
     /// per object if there are several), `albedo` (one per object), `vertex_albedo[_<k>]`.
     #[arg(short, long, default_value = "grad.npz")]
@@ -464,21 +469,31 @@ fn grad(args: GradArgs) -> umbra::Result<()> {
         .num_threads(args.threads.unwrap_or(0))
         .build()
         .map_err(|e| umbra::Error::Invalid(format!("--threads: {e}")))?;
-    let target = umbra::io::read_npy(&args.target)?;
+    let (input, given) = match (&args.target, &args.adjoint) {
+        (_, Some(a)) => (a, true),
+        (Some(t), None) => (t, false),
+        (None, None) => unreachable!("clap requires one"),
+    };
+    let array = umbra::io::read_npy(input)?;
     let t0 = std::time::Instant::now();
     let (value, g) = pool.install(|| -> umbra::Result<_> {
         let geom = umbra::geometry::SceneGeometry::build(&scene);
-        let primal = umbra::transport::render(&scene, &geom, &opts, None)?;
-        if target.shape != primal.shape {
+        let shape = scene.output_shape();
+        if array.shape != shape {
             return Err(umbra::Error::scene(
-                &args.target,
+                input,
                 format!(
-                    "shape {:?} differs from the render's {:?}",
-                    target.shape, primal.shape
+                    "shape {:?} differs from the render's {shape:?}",
+                    array.shape
                 ),
             ));
         }
-        let (value, adj) = loss.evaluate(&primal.data, &target.data, primal.bins())?;
+        let (value, adj) = if given {
+            (0.0, array.data.clone())
+        } else {
+            let primal = umbra::transport::render(&scene, &geom, &opts, None)?;
+            loss.evaluate(&primal.data, &array.data, primal.bins())?
+        };
         Ok((value, adjoint::gradient(&scene, &geom, &opts, &adj, None)?))
     })?;
     umbra::io::write_gradient(&args.output, value, &g)?;

@@ -192,6 +192,26 @@ impl SceneGeometry {
         }
     }
 
+    /// Area of hidden triangle `flat` (m²).
+    pub fn hidden_area_of(&self, flat: u32) -> f32 {
+        let [a, b, c] = self.hidden[flat as usize].v;
+        0.5 * (b - a).cross(c - a).length()
+    }
+
+    /// Which of the two relay-wall triangles ([`SceneGeometry::wall_tris`]) holds the wall
+    /// point `p`.
+    pub fn wall_tri_of(&self, p: Vec3) -> u32 {
+        let [a, b, c] = self.wall_tris[0];
+        // p is in the first triangle iff it is on b's side of the diagonal a–c.
+        let (n, diag) = ((b - a).cross(c - a), c - a);
+        let side = |q: Vec3| diag.cross(q - a).dot(n);
+        if side(p) * side(b) >= 0.0 {
+            0
+        } else {
+            1
+        }
+    }
+
     /// The same geometry sampled with `base`'s discrete distributions over triangles
     /// (same triangle count): the estimators' weights then use this geometry's areas with
     /// `base`'s probabilities, so renders at perturbed vertices keep every sample's

@@ -7,6 +7,7 @@
 //!   surface), by Shirley–Chiu's concentric disk mapping.
 //! - [`uniform_disk`]: a uniform point on a disk (a laser spot of finite size).
 
+use crate::adjoint::dual::{self, Real, V3};
 use glam::Vec3;
 
 /// The largest f32 below 1.
@@ -24,6 +25,8 @@ pub struct AreaDistribution {
     cdf: Vec<f32>,
     /// Flat triangle index of each position along the curve.
     order: Vec<u32>,
+    /// Probability of each triangle, by flat index (the width of its CDF step).
+    prob: Vec<f32>,
     total: f64,
 }
 
@@ -70,10 +73,15 @@ impl AreaDistribution {
             acc += areas[i as usize].max(0.0) as f64;
             sums.push(acc);
         }
-        let cdf = sums.iter().map(|&c| (c / acc) as f32).collect();
+        let cdf: Vec<f32> = sums.iter().map(|&c| (c / acc) as f32).collect();
+        let mut prob = vec![0.0; areas.len()];
+        for (k, &i) in order.iter().enumerate() {
+            prob[i as usize] = cdf[k] - if k == 0 { 0.0 } else { cdf[k - 1] };
+        }
         AreaDistribution {
             cdf,
             order,
+            prob,
             total: acc,
         }
     }
@@ -88,6 +96,11 @@ impl AreaDistribution {
     }
 
     /// Area density of any point on the sampled surfaces: `1 / A`.
+    /// Probability of picking triangle `tri` (flat index).
+    pub fn prob(&self, tri: u32) -> f32 {
+        self.prob[tri as usize]
+    }
+
     pub fn pdf_area(&self) -> f32 {
         (1.0 / self.total) as f32
     }
@@ -142,13 +155,34 @@ pub struct DirectionSample {
 
 /// Cosine-weighted direction about unit normal `n`.
 pub fn cosine_hemisphere(n: Vec3, u: [f32; 2]) -> DirectionSample {
-    let [dx, dy] = concentric_disk(u);
-    let dz = (1.0 - dx * dx - dy * dy).max(0.0).sqrt();
-    let (t, b) = n.any_orthonormal_pair();
+    let (dir, dz) = cosine_dir(n.to_array(), u);
     DirectionSample {
-        dir: (dx * t + dy * b + dz * n).normalize(),
+        dir: Vec3::from_array(dir),
         pdf_solid_angle: dz * std::f32::consts::FRAC_1_PI,
     }
+}
+
+/// The direction of [`cosine_hemisphere`] for `u` about the unit normal `n`, and its
+/// cosine with `n`; generic, so a path's direction follows its vertex's normal in the
+/// adjoint pass. The frame is Duff et al. 2017's (as glam's `any_orthonormal_pair`).
+pub fn cosine_dir<R: Real>(n: V3<R>, u: [f32; 2]) -> (V3<R>, f32) {
+    let [dx, dy] = concentric_disk(u);
+    let dz = (1.0 - dx * dx - dy * dy).max(0.0).sqrt();
+    let sign: f32 = if n[2].v().is_sign_negative() {
+        -1.0
+    } else {
+        1.0
+    };
+    let a = R::c(-1.0) / (n[2] + R::c(sign as f64));
+    let b = n[0] * n[1] * a;
+    let t = [
+        R::c(1.0) + (n[0] * n[0] * a).s(sign),
+        b.s(sign),
+        n[0].s(-sign),
+    ];
+    let bt = [b, R::c(sign as f64) + n[1] * n[1] * a, -n[1]];
+    let d: V3<R> = std::array::from_fn(|k| t[k].s(dx) + bt[k].s(dy) + n[k].s(dz));
+    (dual::scale(d, R::c(1.0) / dual::length(d)), dz)
 }
 
 /// Density of [`cosine_hemisphere`] for direction `dir` (1/sr).

@@ -47,10 +47,15 @@ impl TriParams<f32> {
     }
 }
 
-impl<T: Float> TriParams<Dual<T, TRI_PARAMS>> {
-    /// Every corner coordinate and albedo a variable.
+impl<T: Float, const N: usize> TriParams<Dual<T, N>> {
+    /// Every corner coordinate and albedo a variable: slots `0..12`.
     pub fn variables(t: &HiddenTri) -> Self {
-        let var = |v: f32, i| Dual::var(T::c(v as f64), i);
+        Self::variables_at(t, 0)
+    }
+
+    /// Every corner coordinate and albedo a variable: slots `offset..offset + 12`.
+    pub fn variables_at(t: &HiddenTri, offset: usize) -> Self {
+        let var = |v: f32, i: usize| Dual::var(T::c(v as f64), offset + i);
         TriParams {
             v: std::array::from_fn(|i| std::array::from_fn(|k| var(t.v[i][k], 3 * i + k))),
             albedo: std::array::from_fn(|i| var(t.albedo[i], 9 + i)),
@@ -64,6 +69,24 @@ impl<R: Real> TriParams<R> {
     pub fn point(&self, [b1, b2]: [f32; 2]) -> V3<R> {
         let b0 = 1.0 - b1 - b2;
         std::array::from_fn(|k| self.v[0][k].s(b0) + self.v[1][k].s(b1) + self.v[2][k].s(b2))
+    }
+
+    /// Barycentrics `(b1, b2)` of a point `y` of the triangle's plane.
+    pub fn barycentric_of(&self, y: V3<R>) -> [R; 2] {
+        let (e1, e2) = (
+            dual::sub(self.v[1], self.v[0]),
+            dual::sub(self.v[2], self.v[0]),
+        );
+        let w = dual::sub(y, self.v[0]);
+        let (d00, d01, d11) = (dual::dot(e1, e1), dual::dot(e1, e2), dual::dot(e2, e2));
+        let (d20, d21) = (dual::dot(w, e1), dual::dot(w, e2));
+        let inv = R::c(1.0) / (d00 * d11 - d01 * d01);
+        [(d11 * d20 - d01 * d21) * inv, (d00 * d21 - d01 * d20) * inv]
+    }
+
+    /// Albedo at barycentrics that are themselves [`Real`]s.
+    pub fn albedo_at_r(&self, [b1, b2]: [R; 2]) -> R {
+        self.albedo[0] * (R::c(1.0) - b1 - b2) + self.albedo[1] * b1 + self.albedo[2] * b2
     }
 
     pub fn albedo_at(&self, [b1, b2]: [f32; 2]) -> R {

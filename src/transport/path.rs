@@ -35,29 +35,59 @@
 //! albedo, each technique switched off alone (not BSDF and hidden-geometry sampling
 //! together; not laser sampling with a point spot). Does not: non-Lambertian BRDFs,
 //! participating media, a non-planar wall.
+//!
+//! **Adjoint (path replay).** The weights are written once over [`Real`]
+//! ([`continuation`], [`nee`]); an adjoint sink makes the same loop carry, next to the
+//! `f32` state, a state in dual numbers with respect to the corners and albedos of up to
+//! [`PATH_TRIANGLES`] hidden triangles met on the path. A point drawn by area sampling
+//! keeps its barycentrics; a point found by a ray keeps the ray's sampled numbers, so it
+//! moves along the ray, whose direction follows the previous vertex's normal; the area
+//! densities use the current triangle areas over the (fixed) triangle probabilities, and
+//! the discrete choices (technique, triangle, Russian roulette) stay put: the derivative of
+//! the estimator at fixed random numbers, which finite differences with common random
+//! numbers check. Paths meeting more hidden triangles lose the further ones'
+//! derivatives (counted; see `adjoint`). Laser sampling with a point spot only.
 
-use super::{sample_spot, scatter_cosines, Contribution, MeasurementCtx, PathVertex, Sink};
-use crate::geometry::sampling::{cosine_hemisphere, ONE_MINUS_EPS};
+use super::mc3::TriParams;
+use super::{sample_spot, Contribution, HiddenGrad, MeasurementCtx, PathVertex, Sink};
+use crate::adjoint::dual::{self, Dual, Real, V3};
+use crate::geometry::sampling::{cosine_dir, cosine_hemisphere, ONE_MINUS_EPS};
 use crate::geometry::SurfaceKind;
 use crate::rng::Sampler;
 use crate::scene::Techniques;
 use glam::Vec3;
 use std::f32::consts::{FRAC_1_PI, PI};
 
+/// Hidden triangles whose derivatives one path can carry (12 parameters each).
+pub const PATH_TRIANGLES: usize = 4;
+
+/// Dual numbers over [`PATH_TRIANGLES`] triangles' corners and albedos.
+pub type PathDual = Dual<f32, 48>;
+
 /// Reusable per-thread storage for a path's vertices (no allocation per sample).
 #[derive(Default)]
 pub struct PathScratch {
     /// `x_s, y_1, …, y_j` while tracing; the laser spot is pushed for each emission.
     vertices: Vec<PathVertex>,
+    /// Adjoint pass: contributions whose path met more than [`PATH_TRIANGLES`] hidden
+    /// triangles (their further derivatives are lost), and all contributions.
+    pub truncated: u64,
+    pub emitted: u64,
 }
 
-/// The vertex the path stands on.
-struct Vertex {
-    p: Vec3,
+/// A path vertex as the weight formulas see it.
+#[derive(Clone, Copy, Debug)]
+struct Surf<R> {
+    p: V3<R>,
     /// Normal on the side the path arrived from (the side light leaves from).
-    n_side: Vec3,
+    n_side: V3<R>,
     /// BRDF `ρ/π` at the vertex.
-    f: f32,
+    f: R,
+}
+
+/// The vertex the path stands on (primal).
+struct Vertex {
+    s: Surf<f32>,
     albedo: f32,
     on_wall: bool,
 }
@@ -84,6 +114,81 @@ fn technique_probabilities(tech: &Techniques, on_wall: bool) -> (f32, f32) {
         }
         (true, false) => (1.0, 0.0),
         _ => (0.0, 1.0),
+    }
+}
+
+/// The continuation `x → y`: the throughput factor `f(x) cos θ_x cos θ_y / (d² q(y))`
+/// (`q` the one-sample MIS mixture's area density, `p_hg` hidden-geometry sampling's
+/// area density at `y`) and the segment's length.
+fn continuation<R: Real>(
+    x: &Surf<R>,
+    y_p: V3<R>,
+    y_n: V3<R>,
+    (c_bsdf, c_hg): (f32, f32),
+    p_hg: R,
+) -> (R, R) {
+    let d = dual::sub(y_p, x.p);
+    let d2 = dual::dot(d, d);
+    let dist = d2.sqrt();
+    let cos_x = dual::dot(x.n_side, d) / dist;
+    let cos_y = (dual::dot(y_n, d) / dist).abs();
+    let p_bsdf = cos_x.s(FRAC_1_PI) * cos_y / d2;
+    let q = p_bsdf.s(c_bsdf) + p_hg.s(c_hg);
+    (x.f * cos_x * cos_y / (d2 * q), dist)
+}
+
+/// Next-event estimation from `y` to the laser spot `x_l`:
+/// `(cos θ_y cos θ_wall / r², r)`, or `None` if `x_l` is behind either surface.
+fn nee<R: Real>(y: &Surf<R>, x_l: Vec3, n_w: Vec3) -> Option<(R, R)> {
+    let to_l = dual::sub(dual::constant(x_l), y.p);
+    let r2 = dual::dot(to_l, to_l);
+    let r = r2.sqrt();
+    let cos_y = dual::dot(y.n_side, to_l) / r;
+    let cos_wall = -dual::dot(dual::constant(n_w), to_l) / r;
+    (cos_y.v() > 0.0 && cos_wall.v() > 0.0).then(|| (cos_y * cos_wall / r2, r))
+}
+
+/// The adjoint pass's state: the path's vertex, throughput and OPL in dual numbers, and
+/// which hidden triangle owns each slot group.
+struct Replay {
+    groups: [u32; PATH_TRIANGLES],
+    used: usize,
+    truncated: bool,
+    x: Surf<PathDual>,
+    beta: PathDual,
+    opl: PathDual,
+}
+
+impl Replay {
+    /// Triangle `flat` in dual numbers (its own slots; constants once the slots are full).
+    fn triangle(&mut self, ctx: &MeasurementCtx, flat: u32) -> TriParams<PathDual> {
+        let tri = &ctx.geom.hidden[flat as usize];
+        let g = match self.groups[..self.used].iter().position(|&f| f == flat) {
+            Some(g) => g,
+            None if self.used < PATH_TRIANGLES => {
+                self.groups[self.used] = flat;
+                self.used += 1;
+                self.used - 1
+            }
+            None => {
+                self.truncated = true;
+                let c = TriParams::constant(tri);
+                return TriParams {
+                    v: c.v.map(|v| v.map(|x| PathDual::c(x as f64))),
+                    albedo: c.albedo.map(|a| PathDual::c(a as f64)),
+                    two_sided: c.two_sided,
+                };
+            }
+        };
+        TriParams::variables_at(tri, 12 * g)
+    }
+
+    fn grads(&self, weight: &PathDual, opl: &PathDual) -> [HiddenGrad; PATH_TRIANGLES] {
+        std::array::from_fn(|g| HiddenGrad {
+            flat: self.groups[g],
+            weight: std::array::from_fn(|k| weight.d[12 * g + k]),
+            opl: std::array::from_fn(|k| opl.d[12 * g + k]),
+        })
     }
 }
 
@@ -118,21 +223,41 @@ pub fn sample<S: Sink>(
     } else {
         &geom.hidden_area
     };
-    let pdf_hg = hg_dist.pdf_area();
     let n_hidden = geom.hidden.len() as u32;
+    // Hidden-geometry sampling's area density at a point of a wall triangle.
+    let wall_pdf = |k: u32| {
+        let [a, b, c] = geom.wall_tris[k as usize];
+        hg_dist.prob(n_hidden + k) / (0.5 * (b - a).cross(c - a).length())
+    };
+    let n_w = ctx.n_w;
+    let wall_surf = |p: Vec3| Surf {
+        p: p.to_array(),
+        n_side: n_w.to_array(),
+        f: ctx.f_wall,
+    };
 
     scratch.vertices.clear();
     scratch.vertices.push(ctx.wall_vertex(ctx.x_s));
     let mut x = Vertex {
-        p: ctx.x_s,
-        n_side: ctx.n_w,
-        f: ctx.f_wall,
+        s: wall_surf(ctx.x_s),
         albedo: ctx.scene.wall.albedo,
         on_wall: true,
     };
     let mut beta = 1.0f32; // throughput up to x, without f(x)
     let mut opl = ctx.opl_sensor_leg; // OPL from the detector (or x_s) to x
     let mut hidden_seen = false;
+    let mut replay = S::ADJOINT.then(|| Replay {
+        groups: [0; PATH_TRIANGLES],
+        used: 0,
+        truncated: false,
+        x: Surf {
+            p: dual::constant(ctx.x_s),
+            n_side: dual::constant(n_w),
+            f: PathDual::c(ctx.f_wall as f64),
+        },
+        beta: PathDual::c(1.0),
+        opl: PathDual::c(ctx.opl_sensor_leg as f64),
+    });
 
     for j in 1u32.. {
         // y_j can at best close a path of j + 1 bounces (landing on the spot).
@@ -143,15 +268,20 @@ pub fn sample<S: Sink>(
         let [u_pick, u_2] = sampler.next_2d();
         let u_spot = sampler.next_2d();
         let u_rr = sampler.next_1d();
-        let (c_bsdf, c_hg) = technique_probabilities(tech, x.on_wall);
+        let techniques = technique_probabilities(tech, x.on_wall);
+        let (c_bsdf, c_hg) = techniques;
+        let x_p = Vec3::from_array(x.s.p);
+        let x_n = Vec3::from_array(x.s.n_side);
 
         // --- continuation: sample y_j by one of the two techniques -----------------
-        let (dir, dist, y_p, y_n, kind, flat, bary) = if u_pick < c_bsdf {
-            let ds = cosine_hemisphere(x.n_side, [u_pick / c_bsdf, u_2]);
-            let Some(hit) = geom.intersect(x.p, ds.dir) else {
+        let by_bsdf = u_pick < c_bsdf;
+        let u_dir = [u_pick / c_bsdf.max(f32::MIN_POSITIVE), u_2];
+        let (y_p, y_n, kind, flat, bary, sampled_tri) = if by_bsdf {
+            let ds = cosine_hemisphere(x_n, u_dir);
+            let Some(hit) = geom.intersect(x_p, ds.dir) else {
                 break;
             };
-            (ds.dir, hit.t, hit.p, hit.n, hit.kind, hit.flat, hit.bary)
+            (hit.p, hit.n, hit.kind, hit.flat, hit.bary, None)
         } else {
             let u_hg = ((u_pick - c_bsdf) / c_hg).min(ONE_MINUS_EPS);
             let ts = hg_dist.sample([u_hg, u_2]);
@@ -168,30 +298,33 @@ pub fn sample<S: Sink>(
                 let [a, b, c] = geom.wall_tris[(ts.tri - n_hidden) as usize];
                 let [b1, b2] = ts.bary;
                 let y = (1.0 - b1 - b2) * a + b1 * b + b2 * c;
-                (y, ctx.n_w, SurfaceKind::Wall, u32::MAX)
+                (y, n_w, SurfaceKind::Wall, u32::MAX)
             };
-            let d = y - x.p;
-            let dist = d.length();
-            let dir = d / dist;
-            if x.n_side.dot(dir) <= 0.0 || geom.occluded(x.p, y) {
+            let dir = (y - x_p).normalize();
+            if x_n.dot(dir) <= 0.0 || geom.occluded(x_p, y) {
                 break;
             }
-            (dir, dist, y, n, kind, flat, ts.bary)
+            (y, n, kind, flat, ts.bary, Some(ts.tri))
         };
-        let cos_x = x.n_side.dot(dir);
-        let cos_y = y_n.dot(dir).abs();
-        if cos_x <= 0.0 || cos_y <= 1e-7 {
+        let dir = (y_p - x_p).normalize();
+        if x_n.dot(dir) <= 0.0 || y_n.dot(dir).abs() <= 1e-7 {
             break;
         }
-        let inv_d2 = 1.0 / (dist * dist);
-        let p_bsdf_area = cos_x * FRAC_1_PI * cos_y * inv_d2;
-        let p_hg_area = if kind != SurfaceKind::Wall || tech.hidden_geometry_includes_wall {
-            pdf_hg
+        let on_wall = kind == SurfaceKind::Wall;
+        // Hidden-geometry sampling's area density at y (0 where it cannot reach y).
+        let p_hg = if !on_wall {
+            hg_dist.prob(flat) / geom.hidden_area_of(flat)
+        } else if tech.hidden_geometry_includes_wall {
+            let k = match sampled_tri {
+                Some(t) => t - n_hidden,
+                None => geom.wall_tri_of(y_p),
+            };
+            wall_pdf(k)
         } else {
             0.0
         };
-        let q = c_bsdf * p_bsdf_area + c_hg * p_hg_area;
-        beta *= x.f * cos_x * cos_y * inv_d2 / q;
+        let (factor, dist) = continuation(&x.s, y_p.to_array(), y_n.to_array(), techniques, p_hg);
+        beta *= factor;
         opl += dist;
         let y_vertex = PathVertex {
             p: y_p,
@@ -199,106 +332,156 @@ pub fn sample<S: Sink>(
             flat,
             bary,
         };
+        // Which side of y light arrives on; a one-sided surface hit from behind is black.
+        let back = y_n.dot(dir) >= 0.0;
+        if on_wall && back {
+            break;
+        }
+        if !on_wall && back && !geom.hidden[flat as usize].two_sided {
+            break;
+        }
 
-        let y = match kind {
-            SurfaceKind::Wall => {
-                // The wall scatters only on its front.
-                if y_n.dot(dir) >= 0.0 {
-                    break;
+        // --- the same step in dual numbers (adjoint pass) ---------------------------
+        if let Some(rp) = replay.as_mut() {
+            let (y_d, n_d, f_d) = if on_wall {
+                let y = if by_bsdf {
+                    let (d, _) = cosine_dir(rp.x.n_side, u_dir);
+                    let n = dual::constant(n_w);
+                    let c = dual::constant(ctx.scene.wall.center);
+                    let t = dual::dot(n, dual::sub(c, rp.x.p)) / dual::dot(n, d);
+                    std::array::from_fn(|k| rp.x.p[k] + d[k] * t)
+                } else {
+                    dual::constant(y_p)
+                };
+                (y, dual::constant(n_w), PathDual::c(ctx.f_wall as f64))
+            } else {
+                let tri = rp.triangle(ctx, flat);
+                let (n, area) = tri.normal_area();
+                let (y, b) = if by_bsdf {
+                    let (d, _) = cosine_dir(rp.x.n_side, u_dir);
+                    let t = dual::dot(n, dual::sub(tri.v[0], rp.x.p)) / dual::dot(n, d);
+                    let y: V3<PathDual> = std::array::from_fn(|k| rp.x.p[k] + d[k] * t);
+                    (y, tri.barycentric_of(y))
+                } else {
+                    (tri.point(bary), bary.map(|b| PathDual::c(b as f64)))
+                };
+                let p_hg_d = PathDual::c(hg_dist.prob(flat) as f64) / area;
+                let (fac, dist) = continuation(&rp.x, y, n, techniques, p_hg_d);
+                rp.beta = rp.beta * fac;
+                rp.opl = rp.opl + dist;
+                let n_side = if back { n.map(|c| -c) } else { n };
+                rp.x = Surf {
+                    p: y,
+                    n_side,
+                    f: tri.albedo_at_r(b).s(FRAC_1_PI),
+                };
+                (y, n, rp.x.f)
+            };
+            if on_wall {
+                let p_hg_d = PathDual::c(p_hg as f64);
+                let (fac, dist) = continuation(&rp.x, y_d, n_d, techniques, p_hg_d);
+                rp.beta = rp.beta * fac;
+                rp.opl = rp.opl + dist;
+                rp.x = Surf {
+                    p: y_d,
+                    n_side: n_d,
+                    f: f_d,
+                };
+            }
+        }
+
+        let y = if on_wall {
+            // A BSDF-sampled path landing on a finite lit spot: emission, MIS-weighted
+            // against laser sampling (NEE) of the same point.
+            if spot_r > 0.0
+                && (y_p - ctx.x_l).length_squared() <= spot_r * spot_r
+                && keep(j + 1, hidden_seen)
+            {
+                // Balance heuristic between the continuation (density q, whichever
+                // technique drew y) and NEE (density 1/(π r²)) for this spot point.
+                let q = factor_density(&x.s, y_p, y_n, techniques, p_hg);
+                let w_mis = if tech.laser_sampling {
+                    q / (q + 1.0 / spot_area)
+                } else {
+                    1.0
+                };
+                let total_opl = opl + ctx.opl_laser_leg(y_p);
+                if total_opl >= ctx.opl_min && total_opl < ctx.opl_max {
+                    emit(
+                        scratch,
+                        sink,
+                        y_vertex,
+                        total_opl,
+                        beta * spot_radiance * w_mis,
+                        j + 1,
+                        None,
+                    );
                 }
-                // A BSDF-sampled path landing on a finite lit spot: emission, MIS-weighted
-                // against laser sampling (NEE) of the same point.
-                if spot_r > 0.0
-                    && (y_p - ctx.x_l).length_squared() <= spot_r * spot_r
-                    && keep(j + 1, hidden_seen)
-                {
-                    // Balance heuristic between the continuation (density q, whichever
-                    // technique drew y) and NEE (density 1/(π r²)) for this spot point.
-                    let w_mis = if tech.laser_sampling {
-                        q / (q + 1.0 / spot_area)
+            }
+            Vertex {
+                s: wall_surf(y_p),
+                albedo: ctx.scene.wall.albedo,
+                on_wall: true,
+            }
+        } else {
+            hidden_seen = true;
+            let tri = &geom.hidden[flat as usize];
+            let albedo = tri.albedo_at(bary);
+            let f_y = albedo * FRAC_1_PI;
+            let n_side = if back { -y_n } else { y_n };
+            let y_surf = Surf {
+                p: y_p.to_array(),
+                n_side: n_side.to_array(),
+                f: f_y,
+            };
+            if tech.laser_sampling && keep(j + 2, hidden_seen) {
+                let x_l = sample_spot(ctx, u_spot);
+                if let Some((g, r_l)) = nee(&y_surf, x_l, n_w) {
+                    let total_opl = opl + r_l + ctx.opl_laser_leg(x_l);
+                    let weight = if spot_r > 0.0 {
+                        let p_nee = 1.0 / spot_area;
+                        // The continuation from y (a hidden vertex) could have landed
+                        // on x_l too: by BSDF sampling, or by area sampling of the wall.
+                        let (c_b, c_h) = technique_probabilities(tech, false);
+                        let w_l = (x_l - y_p) / r_l;
+                        let (cos_y_l, cos_wall_l) = (n_side.dot(w_l), -n_w.dot(w_l));
+                        let q_l = c_b * cos_y_l * FRAC_1_PI * cos_wall_l / (r_l * r_l)
+                            + if tech.hidden_geometry_includes_wall {
+                                c_h * wall_pdf(geom.wall_tri_of(x_l))
+                            } else {
+                                0.0
+                            };
+                        let w_mis = p_nee / (p_nee + q_l);
+                        beta * f_y * g * spot_radiance / p_nee * w_mis
                     } else {
-                        1.0
+                        beta * f_y * g * ctx.power * ctx.f_wall
                     };
-                    let total_opl = opl + ctx.opl_laser_leg(y_p);
-                    if total_opl >= ctx.opl_min && total_opl < ctx.opl_max {
+                    let in_film = total_opl >= ctx.opl_min && total_opl < ctx.opl_max;
+                    if in_film && weight > 0.0 && !geom.occluded(y_p, x_l) {
+                        let grad = replay.as_ref().and_then(|rp| {
+                            let (g_d, r_d) = nee(&rp.x, x_l, n_w)?;
+                            let w = rp.beta * rp.x.f * g_d.s(ctx.power * ctx.f_wall);
+                            let o = rp.opl + r_d + PathDual::c(ctx.opl_laser_leg(x_l) as f64);
+                            Some((rp.grads(&w, &o), rp.used, rp.truncated))
+                        });
+                        scratch.vertices.push(y_vertex);
                         emit(
                             scratch,
                             sink,
-                            y_vertex,
+                            ctx.wall_vertex(x_l),
                             total_opl,
-                            beta * spot_radiance * w_mis,
-                            j + 1,
+                            weight,
+                            j + 2,
+                            grad.as_ref().map(|(g, n, t)| (&g[..*n], *t)),
                         );
+                        scratch.vertices.pop();
                     }
-                }
-                Vertex {
-                    p: y_p,
-                    n_side: ctx.n_w,
-                    f: ctx.f_wall,
-                    albedo: ctx.scene.wall.albedo,
-                    on_wall: true,
                 }
             }
-            SurfaceKind::Hidden { .. } => {
-                hidden_seen = true;
-                let tri = &geom.hidden[flat as usize];
-                // The side of y light arrives on; a one-sided surface hit from behind is black.
-                let n_side = if y_n.dot(dir) < 0.0 { y_n } else { -y_n };
-                if !tri.two_sided && n_side != y_n {
-                    break;
-                }
-                let albedo = tri.albedo_at(bary);
-                let f_y = albedo * FRAC_1_PI;
-                if tech.laser_sampling && keep(j + 2, hidden_seen) {
-                    let x_l = sample_spot(ctx, u_spot);
-                    let to_l = x_l - y_p;
-                    let r_l = to_l.length();
-                    let w_l = to_l / r_l;
-                    let cos_wall_l = -ctx.n_w.dot(w_l);
-                    let total_opl = opl + r_l + ctx.opl_laser_leg(x_l);
-                    if let (Some((_, cos_y_l)), true, true) = (
-                        scatter_cosines(y_n, tri.two_sided, -dir, w_l),
-                        cos_wall_l > 0.0,
-                        total_opl >= ctx.opl_min && total_opl < ctx.opl_max,
-                    ) {
-                        let g = cos_y_l * cos_wall_l / (r_l * r_l);
-                        let weight = if spot_r > 0.0 {
-                            let p_nee = 1.0 / spot_area;
-                            // The continuation from y (a hidden vertex) could have landed
-                            // on x_l too: by BSDF sampling, or by area sampling of the wall.
-                            let (c_b, c_h) = technique_probabilities(tech, false);
-                            let q_l = c_b * cos_y_l * FRAC_1_PI * cos_wall_l / (r_l * r_l)
-                                + if tech.hidden_geometry_includes_wall {
-                                    c_h * pdf_hg
-                                } else {
-                                    0.0
-                                };
-                            let w_mis = p_nee / (p_nee + q_l);
-                            beta * f_y * g * spot_radiance / p_nee * w_mis
-                        } else {
-                            beta * f_y * g * ctx.power * ctx.f_wall
-                        };
-                        if weight > 0.0 && !geom.occluded(y_p, x_l) {
-                            scratch.vertices.push(y_vertex);
-                            emit(
-                                scratch,
-                                sink,
-                                ctx.wall_vertex(x_l),
-                                total_opl,
-                                weight,
-                                j + 2,
-                            );
-                            scratch.vertices.pop();
-                        }
-                    }
-                }
-                Vertex {
-                    p: y_p,
-                    n_side,
-                    f: f_y,
-                    albedo,
-                    on_wall: false,
-                }
+            Vertex {
+                s: y_surf,
+                albedo,
+                on_wall: false,
             }
         };
 
@@ -309,13 +492,40 @@ pub fn sample<S: Sink>(
                 break;
             }
             beta /= survive;
+            if let Some(rp) = replay.as_mut() {
+                // d survive / dθ: the albedo's where it is not clamped.
+                let s = if y.albedo > 0.05 && y.albedo < 0.95 && !y.on_wall {
+                    rp.x.f.s(PI)
+                } else {
+                    PathDual::c(survive as f64)
+                };
+                rp.beta = rp.beta / s;
+            }
         }
         scratch.vertices.push(y_vertex);
         x = y;
     }
 }
 
-/// Emits a contribution whose last vertex (the laser spot) is `spot`.
+/// The MIS mixture's area density `q(y)` of the continuation `x → y` (for the spot's
+/// emission MIS).
+fn factor_density(
+    x: &Surf<f32>,
+    y_p: Vec3,
+    y_n: Vec3,
+    (c_bsdf, c_hg): (f32, f32),
+    p_hg: f32,
+) -> f32 {
+    let d = y_p - Vec3::from_array(x.p);
+    let d2 = d.length_squared();
+    let dir = d / d2.sqrt();
+    let cos_x = Vec3::from_array(x.n_side).dot(dir);
+    let cos_y = y_n.dot(dir).abs();
+    c_bsdf * cos_x * FRAC_1_PI * cos_y / d2 + c_hg * p_hg
+}
+
+/// Emits a contribution whose last vertex (the laser spot) is `spot`; in the adjoint
+/// pass with its derivatives (`None` for paths whose derivatives are not followed).
 #[inline]
 fn emit<S: Sink>(
     scratch: &mut PathScratch,
@@ -324,13 +534,23 @@ fn emit<S: Sink>(
     opl: f32,
     weight: f32,
     bounces: u32,
+    grads: Option<(&[HiddenGrad], bool)>,
 ) {
     scratch.vertices.push(spot);
-    sink.add(&Contribution {
+    let c = Contribution {
         opl,
         weight,
         bounces,
         vertices: &scratch.vertices,
-    });
+    };
+    if S::ADJOINT {
+        scratch.emitted += 1;
+        if let Some((g, truncated)) = grads {
+            scratch.truncated += truncated as u64;
+            sink.add_grad(&c, g);
+        }
+    } else {
+        sink.add(&c);
+    }
     scratch.vertices.pop();
 }

@@ -18,6 +18,15 @@ const QUAD: &str =
 
 /// Objects: (file, OBJ text, albedo, translation).
 fn scene_with(capture: &str, objects: &[(&str, &str, f32, [f32; 3])]) -> Scene {
+    scene_with_render(capture, objects, "")
+}
+
+/// The same with extra `[render]` lines.
+fn scene_with_render(
+    capture: &str,
+    objects: &[(&str, &str, f32, [f32; 3])],
+    render: &str,
+) -> Scene {
     let mut toml = format!(
         r#"
 capture_type = "{capture}"
@@ -44,6 +53,7 @@ sigma_opl = 0.012
             "[[objects]]\nfile = \"{file}\"\nalbedo = {albedo}\ntransform = {{ translate = [{x}, {y}, {z}] }}\n"
         );
     }
+    toml += &format!("[render]\n{render}\n");
     let objs: Vec<(&str, &str)> = objects.iter().map(|(f, t, _, _)| (*f, *t)).collect();
     scene(&toml, &objs)
 }
@@ -203,6 +213,38 @@ fn tri3_kernel_matches_its_f64_reference() {
         println!("kernel vs reference: {rel:.2e}");
         assert!(den > 0.0 && rel < 2e-5, "{rel}");
     }
+}
+
+/// A concave corner: a plate facing the wall and a side plate at right angles
+/// (interreflections), the side plate beyond every scan point so that it shadows nothing
+/// (occlusion adds boundary terms the interior derivative lacks: `tests/gradient_bias.rs`).
+const CORNER: &str = "v -0.15 -0.15 0.8\nv 0.4 -0.15 0.8\nv 0.4 0.15 0.8\nv -0.15 0.15 0.8\n\
+                      v 0.4 -0.15 0.5\nv 0.4 0.15 0.5\n\
+                      f 1 4 3 2\nf 2 3 6 5\n";
+
+/// Multi-bounce path replay. With hidden-geometry sampling alone every hidden vertex is
+/// attached to its triangle; with MIS on a closed smooth mesh, ray-found points move
+/// along their rays and the estimator stays continuous (the weight vanishes with the
+/// cosine at a silhouette), so finite differences with common random numbers apply.
+#[test]
+fn path_corner_letter_and_sphere() {
+    let hgs_only = "max_bounces = 5\nbsdf_sampling = false";
+    let corner = scene_with_render(
+        "confocal",
+        &[("c.obj", CORNER, 0.7, [0.0123, 0.0071, 0.0])],
+        hgs_only,
+    );
+    check(&corner, Model::Path, 512, 8);
+    let letter = scene_with_render(
+        "single",
+        &[("t.obj", LETTER, 0.7, [0.0123, 0.0071, 0.8])],
+        hgs_only,
+    );
+    check(&letter, Model::Path, 256, 6);
+    let sphere = sphere_obj();
+    let mis = "max_bounces = 5";
+    let s = scene_with_render("confocal", &[("s.obj", &sphere, 0.6, [0.0; 3])], mis);
+    check(&s, Model::Path, 256, 6);
 }
 
 #[test]

@@ -19,9 +19,13 @@
 //! ([`tri3_exact`]: the same generic formula in `f64` duals, through the pulse's closed
 //! form, so the pulse's time shift, its shape and the sub-triangle's area all move).
 //!
-//! Supports: `mc3` and `tri3`, per-object and per-vertex albedo, box and Gaussian
-//! kernels (box: no time-shift term for `mc3`, so vertex gradients miss their largest
-//! part; a warning says so). Not yet: `path`. Does not: boundary terms of visibility
+//! `path` (multi-bounce) replays its paths the same way, with dual numbers over up to four
+//! hidden triangles per path (see `transport::path`): area-sampled points keep their
+//! barycentrics, ray-found points move along their ray.
+//!
+//! Supports: `tri3`, `mc3`, `path` (point laser spot), per-object and per-vertex albedo,
+//! box and Gaussian kernels (box: no time-shift term for the Monte Carlo models, so vertex
+//! gradients miss their largest part; a warning says so). Does not: boundary terms of visibility
 //! changes (silhouettes, occlusion between hidden objects): the interior derivative is
 //! biased there.
 
@@ -36,10 +40,12 @@ use crate::film::Film;
 use crate::geometry::SceneGeometry;
 use crate::scene::{KernelSpec, Model, Scene};
 use crate::transport::mc3::TRI_PARAMS;
+use crate::transport::path::PathScratch;
 use crate::transport::tri3::Tri3Mesh;
 use crate::transport::tri3_exact;
 use crate::transport::{
-    run_samples, Contribution, HiddenGrad, MeasurementCtx, Progress, RenderOptions, Sink, BLOCK_SPP,
+    run_samples_with, Contribution, HiddenGrad, MeasurementCtx, Progress, RenderOptions, Sink,
+    BLOCK_SPP,
 };
 use rayon::prelude::*;
 use std::sync::atomic::Ordering;
@@ -54,6 +60,11 @@ pub struct Gradient {
     pub albedo: Vec<f64>,
     /// dLoss/d(vertex albedo) for objects with per-vertex albedo.
     pub vertex_albedo: Vec<Option<Vec<f64>>>,
+    /// `path`: contributions emitted, and how many of them met more hidden triangles
+    /// than one path's derivatives can follow (`path::PATH_TRIANGLES`): those lose the
+    /// further triangles' share of the gradient.
+    pub contributions: u64,
+    pub truncated: u64,
 }
 
 /// The adjoint sink: accumulates `A dw + w B dτ` into per-triangle local gradients.
@@ -100,11 +111,15 @@ pub fn gradient(
     progress: Option<&Progress>,
 ) -> Result<Gradient> {
     let model = opts.model;
-    if !matches!(model, Model::Mc3 | Model::Tri3) {
-        return Err(Error::Invalid(format!(
-            "gradients: model {} is not supported yet (use tri3 or mc3)",
-            model.name()
-        )));
+    if model == Model::Auto {
+        return Err(Error::Invalid(
+            "gradients: resolve auto to a model first".into(),
+        ));
+    }
+    if model == Model::Path && scene.laser.spot_radius > 0.0 {
+        return Err(Error::Invalid(
+            "gradients of the path model need a point laser spot (spot_radius = 0)".into(),
+        ));
     }
     let tri3 = (model == Model::Tri3).then(|| Tri3Mesh::build(scene, geom, opts.subdivision));
     let film = Film::new(&scene.film);
@@ -124,10 +139,11 @@ pub fn gradient(
     let tris = geom.hidden.len();
     let chunks = MAX_CHUNKS.min(measurements).max(1);
     let spp = opts.spp.max(1);
-    let partial: Vec<Vec<[f64; TRI_PARAMS]>> = (0..chunks)
+    let partial: Vec<(Vec<[f64; TRI_PARAMS]>, u64, u64)> = (0..chunks)
         .into_par_iter()
         .map(|c| {
             let mut tri_grad = vec![[0.0; TRI_PARAMS]; tris];
+            let mut scratch = PathScratch::default();
             for m in (c * measurements / chunks)..((c + 1) * measurements / chunks) {
                 if progress.is_some_and(|p| p.cancel.load(Ordering::Relaxed)) {
                     break;
@@ -156,31 +172,46 @@ pub fn gradient(
                 };
                 for first in (0..spp).step_by(BLOCK_SPP as usize) {
                     let range = first..(first + BLOCK_SPP).min(spp);
-                    run_samples(model, &ctx, opts.seed, m as u64, range, &mut sink);
+                    run_samples_with(
+                        model,
+                        &ctx,
+                        opts.seed,
+                        m as u64,
+                        range,
+                        &mut sink,
+                        &mut scratch,
+                    );
                 }
                 if let Some(p) = progress {
                     p.work_done.fetch_add(spp as u64, Ordering::Relaxed);
                 }
             }
-            tri_grad
+            (tri_grad, scratch.emitted, scratch.truncated)
         })
         .collect();
     if progress.is_some_and(|p| p.cancel.load(Ordering::Relaxed)) {
         return Err(Error::Cancelled);
     }
     let mut tri_grad = vec![[0.0f64; TRI_PARAMS]; tris];
-    for part in partial {
+    let (mut contributions, mut truncated) = (0, 0);
+    for (part, emitted, cut) in partial {
         for (acc, g) in tri_grad.iter_mut().zip(part) {
             acc.iter_mut().zip(g).for_each(|(a, g)| *a += g);
         }
+        contributions += emitted;
+        truncated += cut;
     }
-    Ok(scatter(scene, geom, &tri_grad))
+    let mut g = scatter(scene, geom, &tri_grad);
+    (g.contributions, g.truncated) = (contributions, truncated);
+    Ok(g)
 }
 
 /// Chains per-triangle local gradients (corners, corner albedos) to the objects'
 /// vertices and albedos.
 fn scatter(scene: &Scene, geom: &SceneGeometry, tri_grad: &[[f64; TRI_PARAMS]]) -> Gradient {
     let mut g = Gradient {
+        contributions: 0,
+        truncated: 0,
         vertices: scene
             .objects
             .iter()

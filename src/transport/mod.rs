@@ -171,12 +171,32 @@ pub fn run_samples<S: Sink>(
     range: std::ops::Range<u32>,
     sink: &mut S,
 ) {
-    let mut scratch = path::PathScratch::default();
+    run_samples_with(
+        model,
+        ctx,
+        seed,
+        m,
+        range,
+        sink,
+        &mut path::PathScratch::default(),
+    );
+}
+
+/// [`run_samples`] with the caller's path scratch (whose counters the adjoint reads).
+pub fn run_samples_with<S: Sink>(
+    model: Model,
+    ctx: &MeasurementCtx,
+    seed: u64,
+    m: u64,
+    range: std::ops::Range<u32>,
+    sink: &mut S,
+    scratch: &mut path::PathScratch,
+) {
     for i in range {
         let mut sampler = Sampler::new(seed, m, i);
         match model {
             Model::Mc3 => mc3::sample(ctx, &mut sampler, sink),
-            Model::Path => path::sample(ctx, &mut sampler, &mut scratch, sink),
+            Model::Path => path::sample(ctx, &mut sampler, scratch, sink),
             Model::Tri3 | Model::Auto => unreachable!("not a Monte Carlo model"),
         }
     }

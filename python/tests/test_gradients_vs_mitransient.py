@@ -30,7 +30,7 @@ in both renderers; mitransient `<shape id>.bsdf.reflectance.value`, Umbra `albed
 - mitransient's vertex gradients: recorded; in 1.3.1 they are exactly zero (all components,
   every seed), and in forward mode its differential phase raises "not attached to the AD
   graph" when vertex_positions is the only differentiable parameter
-  (test_mitransient_vertex_gradients). docs/VALIDATION.md states this; the test keeps it true.
+  (test_mitransient_vertex_gradients). docs/GRADIENTS.md states this; the test keeps it true.
 
 Env: UMBRA_BIN (see conftest; UMBRA_BIN=mitransient-self plays Umbra with mitransient at
 other seeds: a calibration of the statistics), UMBRA_XVAL_CASES (substrings, e.g. "T-single").
@@ -246,10 +246,10 @@ def test_albedo_gradient_vs_mitransient(scene, capture, mt, umbra_bin, cache_dir
     assert abs(z_self) < Z_MAX and abs(gm / pm - 1) < REL_TOL, (
         f"mitransient's AD gradient {gm:.6e} != its primal sum(dH*H)/rho {pm:.6e} "
         f"(z = {z_self:+.2f}): the test's mitransient set-up is wrong")
-    # mitransient 1.3.1 returns exactly zero vertex gradients (docs/VALIDATION.md says so).
+    # mitransient 1.3.1 returns exactly zero vertex gradients (docs/GRADIENTS.md says so).
     assert mt_vmax == 0.0, (
         f"mitransient returned non-zero vertex gradients (max |.| {mt_vmax:.3e}): "
-        "update the statement in docs/VALIDATION.md")
+        "update the statement in docs/GRADIENTS.md")
     if umbra_bin != SELF_CHECK:
         for u in U:
             assert np.isfinite(u["vertices"]).all(), "Umbra vertex gradients have NaN/inf"
@@ -322,6 +322,6 @@ def test_mitransient_vertex_gradients(mt, cache_dir):
     print(f"\nmitransient forward-mode d transient / d vertex_positions: {res}")
     assert res["raised"] or res["max_abs"] == 0.0, (
         f"mitransient now differentiates vertex positions (max |dH| {res['max_abs']}): "
-        "update docs/VALIDATION.md")
+        "update docs/GRADIENTS.md")
     if res["raised"]:
         assert "not attached to the AD graph" in res["message"], res["message"]

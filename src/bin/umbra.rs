@@ -54,7 +54,7 @@ struct GradArgs {
     /// per object if there are several), `albedo` (one per object), `vertex_albedo[_<k>]`.
     #[arg(short, long, default_value = "grad.npz")]
     output: PathBuf,
-    /// Model: tri3 or mc3 (path is to come).
+    /// Model: tri3, mc3 or path.
     #[arg(long, default_value = "mc3")]
     model: String,
     /// Samples per measurement (overrides the scene).
@@ -78,7 +78,7 @@ struct GradArgs {
 struct GradcheckArgs {
     /// Scene file: Umbra TOML (.toml) or mitransient-style Mitsuba XML (.xml).
     scene: PathBuf,
-    /// Model: tri3 or mc3.
+    /// Model: tri3, mc3 or path.
     #[arg(long, default_value = "mc3")]
     model: String,
     /// Vertex coordinates checked per object (plus each object's albedo).
@@ -496,6 +496,15 @@ fn grad(args: GradArgs) -> umbra::Result<()> {
         };
         Ok((value, adjoint::gradient(&scene, &geom, &opts, &adj, None)?))
     })?;
+    if g.truncated > 0 {
+        eprintln!(
+            "warning: {} of {} path contributions met more than {} hidden triangles; their \
+             further triangles' share of the gradient is missing",
+            g.truncated,
+            g.contributions,
+            umbra::transport::path::PATH_TRIANGLES
+        );
+    }
     umbra::io::write_gradient(&args.output, value, &g)?;
     let norm: f64 = g
         .vertices
@@ -520,7 +529,10 @@ fn gradcheck(args: GradcheckArgs) -> umbra::Result<()> {
     let scene = load_scene(Some(&args.scene), &args.define)?;
     let mut opts = RenderOptions::from_scene(&scene);
     opts.model = Model::parse(&args.model).ok_or_else(|| {
-        umbra::Error::Invalid(format!("--model: '{}' is not one of tri3, mc3", args.model))
+        umbra::Error::Invalid(format!(
+            "--model: '{}' is not one of tri3, mc3, path",
+            args.model
+        ))
     })?;
     if let Some(s) = args.spp {
         opts.spp = s.max(1);

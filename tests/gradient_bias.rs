@@ -18,6 +18,10 @@ const OCCLUDER: &str =
     "v -0.02 -0.05 0.6\nv 0.08 -0.05 0.6\nv 0.08 0.05 0.6\nv -0.02 0.05 0.6\nf 1 4 3 2\n";
 
 fn scene_of(objects: &[(&str, &str)]) -> Scene {
+    scene_with(objects, "")
+}
+
+fn scene_with(objects: &[(&str, &str)], render: &str) -> Scene {
     let mut toml = String::from(
         r#"
 capture_type = "confocal"
@@ -39,17 +43,18 @@ sigma_opl = 0.012
     for (f, _) in objects {
         toml += &format!("[[objects]]\nfile = \"{f}\"\nalbedo = 0.7\ntwo_sided = true\n");
     }
+    toml += &format!("[render]\n{render}\n");
     scene(&toml, objects)
 }
 
 /// (mean adjoint, mean fd, standard error of adjoint − fd) over seeds.
-fn measure(s: &Scene, p: Param, h: f64, spp: u32) -> (f64, f64, f64) {
+fn measure(s: &Scene, model: Model, p: Param, h: f64, spp: u32) -> (f64, f64, f64) {
     let mut diffs = Vec::new();
     let (mut ad, mut fd) = (0.0, 0.0);
     let seeds = 6;
     for seed in 0..seeds {
         let opts = RenderOptions {
-            model: Model::Mc3,
+            model,
             spp,
             seed,
             ..RenderOptions::from_scene(s)
@@ -68,30 +73,50 @@ fn measure(s: &Scene, p: Param, h: f64, spp: u32) -> (f64, f64, f64) {
 fn occlusion_biases_the_interior_derivative_and_nothing_else_does() {
     let plate_alone = scene_of(&[("plate.obj", PLATE)]);
     let both = scene_of(&[("plate.obj", PLATE), ("occ.obj", OCCLUDER)]);
+    let objects = [("plate.obj", PLATE), ("occ.obj", OCCLUDER)];
+    let hgs = scene_with(&objects, "max_bounces = 5\nbsdf_sampling = false");
+    let mis = scene_with(&objects, "max_bounces = 5");
     let cases = [
         (
-            "plate alone, plate corner x",
+            "mc3: plate alone, plate corner x",
+            Model::Mc3,
             &plate_alone,
             Param::Vertex(0, 1, 0),
             false,
         ),
         (
-            "plate behind an occluder, plate corner x",
+            "mc3: plate behind an occluder, plate corner x",
+            Model::Mc3,
             &both,
             Param::Vertex(0, 1, 0),
             true,
         ),
         (
-            "occluder corner x (its shadow moves)",
+            "mc3: occluder corner x (its shadow moves)",
+            Model::Mc3,
             &both,
+            Param::Vertex(1, 1, 0),
+            true,
+        ),
+        (
+            "path (area sampling): occluder corner x",
+            Model::Path,
+            &hgs,
+            Param::Vertex(1, 1, 0),
+            true,
+        ),
+        (
+            "path (MIS): occluder corner x",
+            Model::Path,
+            &mis,
             Param::Vertex(1, 1, 0),
             true,
         ),
     ];
     println!("| case | adjoint | finite difference | bias (adjoint − fd) / |fd| | ± |");
     println!("|---|---|---|---|---|");
-    for (name, s, p, occluded) in cases {
-        let (ad, fd, se) = measure(s, p, 2e-3, 4096);
+    for (name, model, s, p, occluded) in cases {
+        let (ad, fd, se) = measure(s, model, p, 2e-3, 4096);
         let bias = (ad - fd) / fd.abs();
         let err = se / fd.abs();
         println!(

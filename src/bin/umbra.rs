@@ -608,7 +608,12 @@ fn bench_grad(args: &BenchArgs) -> umbra::Result<()> {
     );
     println!("| model | spp | forward s | adjoint s | adjoint / forward |");
     println!("|---|---|---|---|---|");
-    for (model, spp) in [(Model::Mc3, 64), (Model::Mc3, 512), (Model::Tri3, 1)] {
+    for (model, spp) in [
+        (Model::Mc3, 64),
+        (Model::Mc3, 512),
+        (Model::Path, 64),
+        (Model::Tri3, 1),
+    ] {
         let t = bench::grad_timing(&scene, model, spp, args.reps)?;
         println!(
             "| {} | {} | {:.4} | {:.4} | {:.2} |",
@@ -623,34 +628,38 @@ fn bench_grad(args: &BenchArgs) -> umbra::Result<()> {
             t.adjoint / t.forward
         );
     }
-    println!("\n## Gradient pass: peak memory against spp (mc3, a fresh process each)\n");
-    println!("| spp | peak RSS MB |");
-    println!("|---|---|");
+    println!("\n## Gradient pass: peak memory against spp (a fresh process each)\n");
+    println!("| model | spp | peak RSS MB |");
+    println!("|---|---|---|");
     let exe = std::env::current_exe().map_err(|e| umbra::Error::Invalid(e.to_string()))?;
-    let mut peaks = Vec::new();
-    for spp in [1u32, 16, 256, 4096] {
-        let out = std::process::Command::new(&exe)
-            .args([
-                "bench",
-                "grad-pass",
-                "--model",
-                "mc3",
-                "--spp",
-                &spp.to_string(),
-            ])
-            .args(["--threads", &threads.to_string()])
-            .output()
-            .map_err(|e| umbra::Error::Invalid(format!("bench grad-pass: {e}")))?;
-        let kb: f64 = String::from_utf8_lossy(&out.stdout)
-            .trim()
-            .parse()
-            .unwrap_or(f64::NAN);
-        peaks.push(kb);
-        println!("| {spp} | {:.1} |", kb / 1024.0);
+    let mut ratios = Vec::new();
+    for model in ["mc3", "path"] {
+        let mut peaks = Vec::new();
+        for spp in [1u32, 16, 256, 4096] {
+            let out = std::process::Command::new(&exe)
+                .args([
+                    "bench",
+                    "grad-pass",
+                    "--model",
+                    model,
+                    "--spp",
+                    &spp.to_string(),
+                ])
+                .args(["--threads", &threads.to_string()])
+                .output()
+                .map_err(|e| umbra::Error::Invalid(format!("bench grad-pass: {e}")))?;
+            let kb: f64 = String::from_utf8_lossy(&out.stdout)
+                .trim()
+                .parse()
+                .unwrap_or(f64::NAN);
+            peaks.push(kb);
+            println!("| {model} | {spp} | {:.1} |", kb / 1024.0);
+        }
+        let (lo, hi) = peaks
+            .iter()
+            .fold((f64::INFINITY, 0.0f64), |(l, h), &p| (l.min(p), h.max(p)));
+        ratios.push(format!("{model} {:.3}", hi / lo));
     }
-    let (lo, hi) = peaks
-        .iter()
-        .fold((f64::INFINITY, 0.0f64), |(l, h), &p| (l.min(p), h.max(p)));
-    println!("\nLargest / smallest: {:.3}", hi / lo);
+    println!("\nLargest / smallest: {}", ratios.join(", "));
     Ok(())
 }

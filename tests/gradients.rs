@@ -247,6 +247,24 @@ fn path_corner_letter_and_sphere() {
     check(&s, Model::Path, 256, 6);
 }
 
+/// The quad with vertex colours: per-vertex albedo, interpolated over the triangles.
+const QUAD_COLOURED: &str = "v -0.1 -0.1 0.55 0.2 0.2 0.2\nv 0.12 -0.1 0.6 0.9 0.9 0.9\n\
+                             v 0.12 0.1 0.62 0.5 0.5 0.5\nv -0.1 0.1 0.57 0.7 0.7 0.7\nf 1 4 3 2\n";
+
+/// Per-vertex albedo (vertex colours) for all three models, and path on two objects.
+#[test]
+fn vertex_albedo_and_path_on_two_objects() {
+    let objects = [
+        ("t.obj", LETTER, 0.7, [-0.1877, 0.0071, 0.8]),
+        ("q.obj", QUAD_COLOURED, 0.5, [0.3, 0.1, 0.0]),
+    ];
+    let s = scene_with("confocal", &objects);
+    check(&s, Model::Tri3, 1, 3);
+    check(&s, Model::Mc3, 256, 3);
+    let p = scene_with_render("single", &objects, "max_bounces = 5");
+    check(&p, Model::Path, 256, 3);
+}
+
 #[test]
 fn gradient_does_not_depend_on_threads() {
     let s = scene_with("confocal", &[("t.obj", LETTER, 0.7, [0.0123, 0.0071, 0.8])]);

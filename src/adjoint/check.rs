@@ -23,6 +23,8 @@ pub enum Param {
     /// Object, vertex (OBJ order), axis.
     Vertex(usize, usize, usize),
     Albedo(usize),
+    /// Object, vertex: its albedo (meshes with vertex colours).
+    VertexAlbedo(usize, usize),
 }
 
 impl std::fmt::Display for Param {
@@ -30,6 +32,7 @@ impl std::fmt::Display for Param {
         match *self {
             Param::Vertex(o, v, k) => write!(f, "object {o} vertex {v} {}", ["x", "y", "z"][k]),
             Param::Albedo(o) => write!(f, "object {o} albedo"),
+            Param::VertexAlbedo(o, v) => write!(f, "object {o} vertex {v} albedo"),
         }
     }
 }
@@ -88,6 +91,11 @@ fn perturbed(scene: &Scene, p: Param, h: f64) -> (Scene, f64) {
     let x = match p {
         Param::Vertex(o, v, k) => &mut s.objects[o].mesh.positions[v][k],
         Param::Albedo(o) => &mut s.objects[o].albedo,
+        Param::VertexAlbedo(o, v) => &mut s.objects[o]
+            .mesh
+            .vertex_albedo
+            .as_mut()
+            .expect("vertex albedo")[v],
     };
     let old = *x;
     *x += h as f32;
@@ -96,7 +104,8 @@ fn perturbed(scene: &Scene, p: Param, h: f64) -> (Scene, f64) {
 }
 
 /// `per_object` vertex coordinates of each object (vertices used by a face, picked by a
-/// fixed generator), then each object's albedo (objects without per-vertex albedo).
+/// fixed generator), then each object's albedo, or two vertex albedos for a mesh with
+/// vertex colours.
 pub fn pick_params(scene: &Scene, per_object: usize, seed: u64) -> Vec<Param> {
     let mut state = seed ^ 0x9E37_79B9_7F4A_7C15;
     let mut next = || {
@@ -121,6 +130,10 @@ pub fn pick_params(scene: &Scene, per_object: usize, seed: u64) -> Vec<Param> {
         }
         if obj.mesh.vertex_albedo.is_none() {
             ps.push(Param::Albedo(o));
+        } else {
+            for _ in 0..2 {
+                ps.push(Param::VertexAlbedo(o, used[next() % used.len()]));
+            }
         }
     }
     ps
@@ -161,6 +174,7 @@ pub fn run(scene: &Scene, opts: &RenderOptions, params: &[Param], hs: &[f64]) ->
         let adjoint = match p {
             Param::Vertex(o, v, k) => g.vertices[o][v][k],
             Param::Albedo(o) => g.albedo[o],
+            Param::VertexAlbedo(o, v) => g.vertex_albedo[o].as_ref().map_or(0.0, |a| a[v]),
         };
         let mut fd = Vec::new();
         for &h in hs {

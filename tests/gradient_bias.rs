@@ -14,6 +14,10 @@ use umbra::transport::RenderOptions;
 
 const PLATE: &str =
     "v -0.15 -0.15 0.9\nv 0.15 -0.15 0.9\nv 0.15 0.15 0.9\nv -0.15 0.15 0.9\nf 1 4 3 2\n";
+/// A concave corner whose side plate hides part of the back plate from the scan points
+/// beyond x = 0.15: self-occlusion, a silhouette that moves with the shared edge.
+const CORNER: &str = "v -0.15 -0.15 0.9\nv 0.15 -0.15 0.9\nv 0.15 0.15 0.9\nv -0.15 0.15 0.9\n\
+                      v 0.15 -0.15 0.6\nv 0.15 0.15 0.6\nf 1 4 3 2\nf 2 3 6 5\n";
 const OCCLUDER: &str =
     "v -0.02 -0.05 0.6\nv 0.08 -0.05 0.6\nv 0.08 0.05 0.6\nv -0.02 0.05 0.6\nf 1 4 3 2\n";
 
@@ -70,12 +74,13 @@ fn measure(s: &Scene, model: Model, p: Param, h: f64, spp: u32) -> (f64, f64, f6
 }
 
 #[test]
-fn occlusion_biases_the_interior_derivative_and_nothing_else_does() {
+fn visibility_changes_bias_the_interior_derivative_and_nothing_else_does() {
     let plate_alone = scene_of(&[("plate.obj", PLATE)]);
     let both = scene_of(&[("plate.obj", PLATE), ("occ.obj", OCCLUDER)]);
     let objects = [("plate.obj", PLATE), ("occ.obj", OCCLUDER)];
     let hgs = scene_with(&objects, "max_bounces = 5\nbsdf_sampling = false");
     let mis = scene_with(&objects, "max_bounces = 5");
+    let corner = scene_of(&[("corner.obj", CORNER)]);
     let cases = [
         (
             "mc3: plate alone, plate corner x",
@@ -103,6 +108,13 @@ fn occlusion_biases_the_interior_derivative_and_nothing_else_does() {
             Model::Path,
             &hgs,
             Param::Vertex(1, 1, 0),
+            true,
+        ),
+        (
+            "mc3: self-occluding corner, shared edge vertex x",
+            Model::Mc3,
+            &corner,
+            Param::Vertex(0, 2, 0),
             true,
         ),
         (

@@ -15,7 +15,8 @@ if ! ls /usr/lib/x86_64-linux-gnu/libLLVM.so.19* >/dev/null 2>&1; then
 fi
 export DRJIT_LIBLLVM_PATH="${DRJIT_LIBLLVM_PATH:-$(ls /usr/lib/x86_64-linux-gnu/libLLVM.so.19* | head -n1)}"
 
-if ! .venv/bin/python -c "import mitsuba, drjit, mitransient, numpy, pytest, h5py" 2>/dev/null; then
+# (find_spec, not import: mitransient refuses to import before a Mitsuba variant is set)
+if ! .venv/bin/python -c "import importlib.util as u, sys; sys.exit(any(u.find_spec(m) is None for m in ['mitsuba', 'drjit', 'mitransient', 'numpy', 'pytest', 'h5py']))" 2>/dev/null; then
     echo "== creating .venv with the peers"
     python3 -m venv .venv
     .venv/bin/pip install -q --upgrade pip

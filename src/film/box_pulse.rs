@@ -153,9 +153,31 @@ impl BoxPulse {
     }
 }
 
+/// Step `m` of [`splat_lanes`]: `G(k_j + m + 1) − G(k_j + m)` for every lane.
+#[inline(always)]
+fn step(
+    pulses: &[BoxPulse; LANES],
+    first: &[i32; LANES],
+    prev: &mut [f32; LANES],
+    m: i32,
+) -> [f32; LANES] {
+    let mut add = [0.0f32; LANES];
+    for j in 0..LANES {
+        let g = pulses[j].cdf((first[j] + m + 1) as f32);
+        add[j] = g - prev[j];
+        prev[j] = g;
+    }
+    add
+}
+
+/// Padding after a measurement's bins that lets [`splat_lanes`] skip its clamps and
+/// bounds checks for pulses spanning fewer bins than this.
+pub const SPLAT_PAD: usize = 64;
+
 /// Adds the live ones of eight pulses into `hist[..bins]` through the box kernel.
-/// `hist` holds `bins + 1` values: the last is a scratch slot that takes dead lanes and
-/// the (exactly zero) differences past a pulse's end.
+/// `hist` holds `bins + 1` values at least (`bins + SPLAT_PAD` for the fast path): past
+/// `bins` is scratch that takes dead lanes and the (exactly zero) differences past a
+/// pulse's end.
 ///
 /// Lanes stay lanes: step `m` evaluates `G` at edge `k_j + m + 1` of every pulse `j` at
 /// once (`k_j` the first edge at or below the pulse) and adds `G(k_j + m + 1) − G(k_j + m)`
@@ -171,7 +193,11 @@ pub fn splat_lanes(
     hist: &mut [f32],
 ) {
     let last = bins as i32;
-    let hist = &mut hist[..=bins];
+    let hist_len = hist.len();
+    assert!(
+        hist_len > bins,
+        "splat_lanes: the histogram needs a scratch slot"
+    );
     let nbins = bins as f32;
     let mut first = [last; LANES];
     let mut span = [0i32; LANES];
@@ -190,16 +216,26 @@ pub fn splat_lanes(
     for j in 0..LANES {
         prev[j] = pulses[j].cdf(first[j] as f32);
     }
-    for m in 0..steps {
-        let mut add = [0.0f32; LANES];
-        for j in 0..LANES {
-            let g = pulses[j].cdf((first[j] + m + 1) as f32);
-            add[j] = g - prev[j];
-            prev[j] = g;
+    if (steps as usize) < SPLAT_PAD && hist_len >= bins + SPLAT_PAD {
+        // Every index first[j] + m is at most bins + steps - 1 < hist_len: lanes past
+        // their pulse's end add an exact 0, dead lanes write into the padding.
+        for m in 0..steps {
+            let add = step(pulses, &first, &mut prev, m);
+            for (j, a) in add.into_iter().enumerate() {
+                let i = (first[j] + m) as usize;
+                debug_assert!(i < hist_len);
+                // SAFETY: first[j] <= bins and m < steps < SPLAT_PAD, so
+                // i < bins + SPLAT_PAD <= hist_len (checked above).
+                unsafe { *hist.get_unchecked_mut(i) += a };
+            }
         }
-        for j in 0..LANES {
-            let bin = first[j] + m;
-            hist[if bin < last { bin } else { last } as usize] += add[j];
+    } else {
+        for m in 0..steps {
+            let add = step(pulses, &first, &mut prev, m);
+            for (j, a) in add.into_iter().enumerate() {
+                let bin = first[j] + m;
+                hist[if bin < last { bin } else { last } as usize] += a;
+            }
         }
     }
 }
@@ -248,6 +284,19 @@ mod tests {
         }
     }
 
+    /// `pad` selects the fast path (SPLAT_PAD) or the clamped one (1).
+    fn splat_all(
+        pulses: &[BoxPulse; LANES],
+        live: &[bool; LANES],
+        bins: usize,
+        pad: usize,
+    ) -> Vec<f32> {
+        let mut h = vec![0.0; bins + pad];
+        splat_lanes(pulses, live, bins, &mut h);
+        h.truncate(bins);
+        h
+    }
+
     fn splat(p: BoxPulse, bins: usize) -> Vec<f32> {
         let mut pulses = [BoxPulse::default(); LANES];
         let mut live = [false; LANES];
@@ -255,10 +304,13 @@ mod tests {
         pulses[5] = p;
         live[5] = true;
         pulses[2] = BoxPulse::new([1.0, 2.0, f32::NAN], [1.0; 3], 1.0);
-        let mut h = vec![0.0; bins + 1];
-        splat_lanes(&pulses, &live, bins, &mut h);
-        h.truncate(bins);
-        h
+        let fast = splat_all(&pulses, &live, bins, SPLAT_PAD);
+        assert_eq!(
+            fast,
+            splat_all(&pulses, &live, bins, 1),
+            "fast and clamped paths differ"
+        );
+        fast
     }
 
     #[test]

@@ -34,7 +34,7 @@
 
 use super::tri3_kernel::{self, PulseBlock, TriBlock, W};
 use super::MeasurementCtx;
-use crate::film::{splat_lanes, Film};
+use crate::film::{splat_lanes, Film, SPLAT_PAD};
 use crate::geometry::{HiddenTri, SceneGeometry};
 use crate::scene::{KernelSpec, Scene, Visibility};
 use glam::Vec3;
@@ -211,7 +211,7 @@ impl Tri3Mesh {
 pub struct Tri3Scratch {
     /// Per original triangle: visible from both wall points (centroid visibility).
     visible: Vec<bool>,
-    /// Box kernel: the measurement's bins and a scratch slot.
+    /// Box kernel: the measurement's bins and [`SPLAT_PAD`] of scratch.
     hist32: Vec<f32>,
     /// Gaussian kernel: the measurement's bins.
     hist64: Vec<f64>,
@@ -235,7 +235,7 @@ pub fn render_measurement(
         scratch.hist64.resize(bins, 0.0);
     } else {
         scratch.hist32.clear();
-        scratch.hist32.resize(bins + 1, 0.0);
+        scratch.hist32.resize(bins + SPLAT_PAD, 0.0);
     }
     let frame = tri3_kernel::frame(ctx, film);
     let confocal = frame.confocal();

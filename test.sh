@@ -3,7 +3,9 @@
 #   1. LLVM 19 (Debian libllvm19) for Dr.Jit's CPU backend (mitransient's llvm_ad_mono);
 #   2. a Python venv in .venv with the peers (python/requirements-test.txt);
 #   3. cargo test --release (Rust unit, integration and fuzz tests);
-#   4. the Python suite (python/tests): Umbra against mitransient.
+#   4. the `umbra` Python package (python/, maturin) into .venv, and PyTorch unless
+#      UMBRA_SKIP_TORCH=1 (the torch tests are then skipped, with that reason);
+#   5. the Python suite (python/tests): the package, umbra.torch, Umbra against mitransient.
 # Each install step runs only when its check fails, so reruns are fast.
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -16,7 +18,7 @@ fi
 export DRJIT_LIBLLVM_PATH="${DRJIT_LIBLLVM_PATH:-$(ls /usr/lib/x86_64-linux-gnu/libLLVM.so.19* | head -n1)}"
 
 # (find_spec, not import: mitransient refuses to import before a Mitsuba variant is set)
-if ! .venv/bin/python -c "import importlib.util as u, sys; sys.exit(any(u.find_spec(m) is None for m in ['mitsuba', 'drjit', 'mitransient', 'numpy', 'pytest', 'h5py']))" 2>/dev/null; then
+if ! .venv/bin/python -c "import importlib.util as u, sys; sys.exit(any(u.find_spec(m) is None for m in ['mitsuba', 'drjit', 'mitransient', 'numpy', 'pytest', 'h5py', 'maturin']))" 2>/dev/null; then
     echo "== creating .venv with the peers"
     python3 -m venv .venv
     .venv/bin/pip install -q --upgrade pip
@@ -26,6 +28,13 @@ fi
 echo "== cargo test --release"
 cargo build --release --locked
 cargo test --release --locked
+
+echo "== the umbra Python package"
+.venv/bin/pip install -q --no-build-isolation ./python
+if [ "${UMBRA_SKIP_TORCH:-0}" != "1" ] && ! .venv/bin/python -c "import importlib.util as u, sys; sys.exit(u.find_spec('torch') is None)"; then
+    echo "== installing torch (CPU use; UMBRA_SKIP_TORCH=1 skips it and its tests)"
+    .venv/bin/pip install -q torch
+fi
 
 echo "== python tests"
 UMBRA_BIN="$PWD/target/release/umbra" .venv/bin/python -m pytest -q python/tests "$@"

@@ -73,5 +73,5 @@ def test_adam_lowers_the_loss():
         loss = ((m() - target) ** 2).sum()
         loss.backward()
         opt.step()
-        losses.append(float(loss))
+        losses.append(float(loss.detach()))
     assert losses[-1] < 0.5 * losses[0], losses

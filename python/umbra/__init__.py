@@ -17,10 +17,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ._umbra import Scene, UmbraError, default_scene, grad as _grad, render as _render
+from ._umbra import Scene, UmbraError, capture, default_scene, grad as _grad, mc3_samples
+from ._umbra import render as _render, tri3_subtriangles
 from ._umbra import load_scene as _load_path, load_scene_xml as _load_xml
 
-__all__ = ["Scene", "UmbraError", "load_scene", "default_scene", "render", "grad", "dict_to_xml"]
+__all__ = ["Scene", "UmbraError", "load_scene", "default_scene", "render", "grad", "dict_to_xml",
+           "capture", "mc3_samples", "tri3_subtriangles"]
 
 
 def load_scene(source: "str | os.PathLike | Mapping[str, Any]", base_dir: "str | None" = None,

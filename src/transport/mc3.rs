@@ -16,6 +16,7 @@
 
 use super::{sample_spot, Contribution, HiddenGrad, MeasurementCtx, PathVertex, Sink};
 use crate::adjoint::dual::{self, Dual, Float, Real, V3};
+use crate::geometry::sampling::TriangleSample;
 use crate::geometry::{HiddenTri, SurfaceKind};
 use crate::rng::Sampler;
 use glam::Vec3;
@@ -149,16 +150,24 @@ pub fn evaluate<R: Real>(
     Some(((f_x * geometry * area).s(constant), opl))
 }
 
+/// The random choices of one sample: a hidden triangle and barycentrics (area sampling),
+/// then a point of the laser spot. Exported as is (`umbra.mc3_samples`) so that an
+/// independent implementation can evaluate exactly this estimator.
+#[inline]
+pub fn draw(ctx: &MeasurementCtx, sampler: &mut Sampler) -> (TriangleSample, Vec3) {
+    let ts = ctx.geom.hidden_area.sample(sampler.next_2d());
+    let x_l = sample_spot(ctx, sampler.next_2d());
+    (ts, x_l)
+}
+
 /// Draws one three-bounce sample and emits its contribution (if any) to `sink`; an
 /// adjoint sink also gets the derivatives of its weight and OPL with respect to the
 /// sampled triangle's corners and albedos (the sample keeps its barycentrics).
 #[inline]
 pub fn sample<S: Sink>(ctx: &MeasurementCtx, sampler: &mut Sampler, sink: &mut S) {
     let geom = ctx.geom;
-    let ts = geom.hidden_area.sample(sampler.next_2d());
-    let u_spot = sampler.next_2d();
+    let (ts, x_l) = draw(ctx, sampler);
     let tri = &geom.hidden[ts.tri as usize];
-    let x_l = sample_spot(ctx, u_spot);
     let Some((weight, opl)) = evaluate(ctx, &TriParams::constant(tri), ts.bary, ts.prob, x_l)
     else {
         return;

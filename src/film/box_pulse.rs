@@ -205,13 +205,19 @@ pub fn splat_lanes(
         let [t0, _, t2] = pulses[j].t;
         // Written to reject NaN too; then both clamp into [0, bins] and convert exactly.
         let inside = live[j] & (t2 >= 0.0) & (t0 < nbins);
-        let k = max(t0, 0.0) as i32;
-        // Past every edge at or below t2: a point mass at t1 = t2 = k lands in bin k.
-        let end = min(t2, nbins) as i32 + 1;
+        // Clamped into [0, bins] whatever t0 and t2 are (NaN included: the comparisons
+        // then pick the bound), so the conversions are exact and never out of range.
+        let (lo, hi) = (min(max(t0, 0.0), nbins), max(min(t2, nbins), 0.0));
+        // SAFETY: lo and hi are finite and in [0, bins], which i32 represents.
+        let (k, end) = unsafe { (lo.to_int_unchecked::<i32>(), hi.to_int_unchecked::<i32>()) };
         first[j] = if inside { k } else { last };
-        span[j] = if inside { end - k } else { 0 };
+        // Past every edge at or below t2: a point mass at t1 = t2 = k lands in bin k.
+        span[j] = if inside { end + 1 - k } else { 0 };
     }
-    let steps = span.iter().copied().fold(0, i32::max);
+    let mut steps = 0;
+    for s in span {
+        steps = if s > steps { s } else { steps };
+    }
     let mut prev = [0.0f32; LANES];
     for j in 0..LANES {
         prev[j] = pulses[j].cdf(first[j] as f32);

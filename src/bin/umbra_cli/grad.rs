@@ -1,0 +1,296 @@
+//! The gradient commands of the `umbra` CLI: `grad`, `gradcheck` and `bench grad`.
+
+use super::{load_scene, BenchArgs};
+use std::path::PathBuf;
+use umbra::scene::Model;
+use umbra::transport::RenderOptions;
+
+#[derive(clap::Args)]
+pub struct GradArgs {
+    /// Scene file: Umbra TOML (.toml) or mitransient-style Mitsuba XML (.xml).
+    scene: PathBuf,
+    /// The measured transient (.npy, the render's shape): the loss is --loss against it.
+    #[arg(long, required_unless_present = "adjoint", conflicts_with = "adjoint")]
+    target: Option<PathBuf>,
+    /// Instead of a target and a loss: the adjoint histogram dLoss/dH itself (.npy, the
+    /// render's shape), for a loss of your own; `loss` is then written as 0 and no
+    /// forward render is done.
+    #[arg(long)]
+    adjoint: Option<PathBuf>,
+    /// Output .npz: `loss`, `vertices` (V x 3, rows in the OBJ's v order; `vertices_<k>`
+    /// per object if there are several), `albedo` (one per object), `vertex_albedo[_<k>]`.
+    #[arg(short, long, default_value = "grad.npz")]
+    output: PathBuf,
+    /// Model: tri3, mc3 or path.
+    #[arg(long, default_value = "mc3")]
+    model: String,
+    /// Samples per measurement (overrides the scene).
+    #[arg(long)]
+    spp: Option<u32>,
+    /// Random seed (overrides the scene).
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Loss: l2 or l2-normalized (per scan point).
+    #[arg(long, default_value = "l2")]
+    loss: String,
+    /// Worker threads (default: all cores). The output does not depend on it.
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Set a Mitsuba XML `$name` parameter, e.g. -D spp=64.
+    #[arg(short = 'D', value_name = "NAME=VALUE")]
+    define: Vec<String>,
+}
+
+#[derive(clap::Args)]
+pub struct GradcheckArgs {
+    /// Scene file: Umbra TOML (.toml) or mitransient-style Mitsuba XML (.xml).
+    scene: PathBuf,
+    /// Model: tri3, mc3 or path.
+    #[arg(long, default_value = "mc3")]
+    model: String,
+    /// Vertex coordinates checked per object (plus each object's albedo).
+    #[arg(long, default_value_t = 6)]
+    params: usize,
+    /// Finite-difference steps for vertex coordinates (m), comma-separated; albedo steps
+    /// are 30x these.
+    #[arg(long, value_delimiter = ',', default_value = "1e-4,3e-4,1e-3")]
+    h: Vec<f64>,
+    /// Largest accepted relative error (against max(|fd|, 2 % of the largest |fd|)).
+    #[arg(long, default_value_t = 0.01)]
+    tolerance: f64,
+    /// Samples per measurement (overrides the scene).
+    #[arg(long)]
+    spp: Option<u32>,
+    /// Random seed (overrides the scene), for the samples and the parameter picks.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Set a Mitsuba XML `$name` parameter, e.g. -D spp=64.
+    #[arg(short = 'D', value_name = "NAME=VALUE")]
+    define: Vec<String>,
+}
+
+pub fn grad(args: GradArgs) -> umbra::Result<()> {
+    use umbra::adjoint::{self, Loss};
+    let scene = load_scene(Some(&args.scene), &args.define)?;
+    for w in &scene.warnings {
+        eprintln!("warning: {w}");
+    }
+    let mut opts = RenderOptions::from_scene(&scene);
+    opts.model = Model::parse(&args.model).ok_or_else(|| {
+        umbra::Error::Invalid(format!(
+            "--model: '{}' is not one of tri3, mc3, path",
+            args.model
+        ))
+    })?;
+    if let Some(s) = args.spp {
+        if s == 0 {
+            return Err(umbra::Error::Invalid("--spp: must be at least 1".into()));
+        }
+        opts.spp = s;
+    }
+    opts.seed = args.seed.unwrap_or(opts.seed);
+    let loss: Loss = args.loss.parse()?;
+    if let Some(w) = adjoint::box_kernel_warning(&scene, opts.model) {
+        eprintln!("warning: {w}");
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(args.threads.unwrap_or(0))
+        .build()
+        .map_err(|e| umbra::Error::Invalid(format!("--threads: {e}")))?;
+    let (input, given) = match (&args.target, &args.adjoint) {
+        (_, Some(a)) => (a, true),
+        (Some(t), None) => (t, false),
+        (None, None) => unreachable!("clap requires one"),
+    };
+    let array = umbra::io::read_npy(input)?;
+    let t0 = std::time::Instant::now();
+    let (value, g) = pool.install(|| -> umbra::Result<_> {
+        let geom = umbra::geometry::SceneGeometry::build(&scene);
+        let shape = scene.output_shape();
+        if array.shape != shape {
+            return Err(umbra::Error::scene(
+                input,
+                format!(
+                    "shape {:?} differs from the render's {shape:?}",
+                    array.shape
+                ),
+            ));
+        }
+        let (value, adj) = if given {
+            (0.0, array.data.clone())
+        } else {
+            let primal = umbra::transport::render(&scene, &geom, &opts, None)?;
+            loss.evaluate(&primal.data, &array.data, primal.bins())?
+        };
+        Ok((value, adjoint::gradient(&scene, &geom, &opts, &adj, None)?))
+    })?;
+    if g.truncated > 0 {
+        eprintln!(
+            "warning: {} of {} path contributions met more than {} hidden triangles; their \
+             further triangles' share of the gradient is missing",
+            g.truncated,
+            g.contributions,
+            umbra::transport::path::PATH_TRIANGLES
+        );
+    }
+    umbra::io::write_gradient(&args.output, value, &g)?;
+    let norm: f64 = g
+        .vertices
+        .iter()
+        .flatten()
+        .flatten()
+        .map(|v| v * v)
+        .sum::<f64>()
+        .sqrt();
+    eprintln!(
+        "umbra: loss {value:.6e}, |d/dvertices| {norm:.3e}, d/dalbedo {:?} ({} spp, {:.2} s) -> {}",
+        g.albedo,
+        opts.spp,
+        t0.elapsed().as_secs_f64(),
+        args.output.display()
+    );
+    Ok(())
+}
+
+pub fn gradcheck(args: GradcheckArgs) -> umbra::Result<()> {
+    use umbra::adjoint::{self, check};
+    let scene = load_scene(Some(&args.scene), &args.define)?;
+    let mut opts = RenderOptions::from_scene(&scene);
+    opts.model = Model::parse(&args.model).ok_or_else(|| {
+        umbra::Error::Invalid(format!(
+            "--model: '{}' is not one of tri3, mc3, path",
+            args.model
+        ))
+    })?;
+    if let Some(s) = args.spp {
+        opts.spp = s.max(1);
+    }
+    opts.seed = args.seed.unwrap_or(opts.seed);
+    if args.h.iter().any(|h| !(h.is_finite() && *h > 0.0)) {
+        return Err(umbra::Error::Invalid("--h: steps must be > 0".into()));
+    }
+    if let Some(w) = adjoint::box_kernel_warning(&scene, opts.model) {
+        eprintln!("warning: {w}");
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(args.threads.unwrap_or(0))
+        .build()
+        .map_err(|e| umbra::Error::Invalid(format!("--threads: {e}")))?;
+    let params = check::pick_params(&scene, args.params, opts.seed);
+    let rows = pool.install(|| check::run(&scene, &opts, &params, &args.h))?;
+    let largest = rows
+        .iter()
+        .flat_map(|r| r.fd.iter().map(|f| f.1.abs()))
+        .fold(0.0, f64::max);
+    let floor = 0.02 * largest;
+    print!("| parameter | adjoint |");
+    for h in &args.h {
+        print!(" fd h={h:e} |");
+    }
+    println!(" best rel. error |");
+    println!("|---|---|{}---|", "---|".repeat(args.h.len()));
+    let mut worst = 0.0f64;
+    for r in &rows {
+        print!("| {} | {:.6e} |", r.param, r.adjoint);
+        for (_, fd) in &r.fd {
+            print!(" {fd:.6e} |");
+        }
+        let e = r.error(floor);
+        worst = worst.max(e);
+        println!(" {e:.2e} |");
+    }
+    println!(
+        "{} parameters, model {}, {} spp; worst relative error {worst:.2e} (tolerance {:.0e})",
+        rows.len(),
+        opts.model.name(),
+        opts.spp,
+        args.tolerance
+    );
+    if largest == 0.0 {
+        return Err(umbra::Error::Invalid(
+            "gradcheck: every finite difference is zero (nothing in the scene reaches the film?)"
+                .into(),
+        ));
+    }
+    if worst > args.tolerance {
+        return Err(umbra::Error::Invalid(format!(
+            "gradcheck failed: relative error {worst:.2e} above the tolerance {:.0e}",
+            args.tolerance
+        )));
+    }
+    Ok(())
+}
+
+pub fn bench_grad(args: &BenchArgs) -> umbra::Result<()> {
+    use umbra::bench;
+    let scene = bench::grad_scene()?;
+    let threads = rayon::current_num_threads();
+    println!("## Gradient pass: time against the forward pass ({threads} threads)\n");
+    println!(
+        "Letter T (72 triangles), confocal 16 x 16, {} bins of {} mm, Gaussian kernel sigma 6 mm; \
+         median of {} interleaved repetitions. The adjoint pass is given dLoss/dH (L2 against the \
+         letter moved 2 cm); it reruns the sampling with derivatives.\n",
+        scene.film.temporal_bins,
+        scene.film.bin_width_opl * 1000.0,
+        args.reps
+    );
+    println!("| model | spp | forward s | adjoint s | adjoint / forward |");
+    println!("|---|---|---|---|---|");
+    for (model, spp) in [
+        (Model::Mc3, 64),
+        (Model::Mc3, 512),
+        (Model::Path, 64),
+        (Model::Tri3, 1),
+    ] {
+        let t = bench::grad_timing(&scene, model, spp, args.reps)?;
+        println!(
+            "| {} | {} | {:.4} | {:.4} | {:.2} |",
+            model.name(),
+            if model == Model::Tri3 {
+                "-".to_string()
+            } else {
+                spp.to_string()
+            },
+            t.forward,
+            t.adjoint,
+            t.adjoint / t.forward
+        );
+    }
+    println!("\n## Gradient pass: peak memory against spp (a fresh process each)\n");
+    println!("| model | spp | peak RSS MB |");
+    println!("|---|---|---|");
+    let exe = std::env::current_exe().map_err(|e| umbra::Error::Invalid(e.to_string()))?;
+    let mut ratios = Vec::new();
+    for model in ["mc3", "path"] {
+        let mut peaks = Vec::new();
+        for spp in [1u32, 16, 256, 4096] {
+            let out = std::process::Command::new(&exe)
+                .args([
+                    "bench",
+                    "grad-pass",
+                    "--model",
+                    model,
+                    "--spp",
+                    &spp.to_string(),
+                ])
+                .args(["--threads", &threads.to_string()])
+                .output()
+                .map_err(|e| umbra::Error::Invalid(format!("bench grad-pass: {e}")))?;
+            let kb: f64 = String::from_utf8_lossy(&out.stdout)
+                .trim()
+                .parse()
+                .unwrap_or(f64::NAN);
+            peaks.push(kb);
+            println!("| {model} | {spp} | {:.1} |", kb / 1024.0);
+        }
+        let (lo, hi) = peaks
+            .iter()
+            .fold((f64::INFINITY, 0.0f64), |(l, h), &p| (l.min(p), h.max(p)));
+        ratios.push(format!("{model} {:.3}", hi / lo));
+    }
+    println!("\nLargest / smallest: {}", ratios.join(", "));
+    Ok(())
+}

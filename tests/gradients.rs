@@ -83,12 +83,9 @@ fn tri3_reference(scene: &Scene, geom: &SceneGeometry, opts: &RenderOptions) -> 
     .unwrap()
 }
 
-/// Objects sit off the scan grid's symmetry lines. At a mirror-symmetric placement two
-/// corners of a sub-triangle tie in OPL exactly, and the tri3 model has a numerical
-/// artefact narrower than 1e-7 m in vertex position around the tie (one-sided finite
-/// differences at h < 1e-7 disagree; at h >= 1e-7, both give the same slope); the
-/// adjoint, evaluated exactly at the tie, takes the artefact's slope: off by 0.07 % of
-/// the largest gradient component for one letter vertex. An open item (docs).
+/// Most scenes sit off the scan grid's symmetry lines (generic positions);
+/// `tri3_at_exact_opl_ties` checks a mirror-symmetric placement, where corners of
+/// sub-triangles tie in OPL exactly.
 fn check(scene: &Scene, model: Model, spp: u32, params: usize) {
     let opts = RenderOptions {
         model,
@@ -186,6 +183,17 @@ fn tri3_letter_sphere_and_two_objects() {
         1,
         4,
     );
+}
+
+/// The letter centred on the scan grid's symmetry lines: corners of sub-triangles tie in
+/// OPL exactly (to the last bit), the case where a Gaussian pulse's empty piece once put
+/// its time derivative on the wrong corner (found by python/tests/test_vs_drjit.py).
+#[test]
+fn tri3_at_exact_opl_ties() {
+    for capture in ["single", "confocal"] {
+        let s = scene_with(capture, &[("t.obj", LETTER, 0.7, [0.0, 0.0, 0.8])]);
+        check(&s, Model::Tri3, 1, 8);
+    }
 }
 
 /// The f64 reference path and the eight-lane f32 kernel compute the same model.

@@ -115,7 +115,11 @@ impl<R: Real> Pulse<R> {
     fn gauss_cdf(&self, sigma: f64, x: f64) -> R {
         let ([t0, t1, t2], [w0, _, w2]) = (self.t, self.w);
         let (xr, inv_s, s) = (R::c(x), 1.0 / sigma, sigma);
-        let mut h = self.total * cap_phi((xr - t2).s(inv_s));
+        // The by-parts boundary term sits at the top of the last piece present: with an
+        // empty [t1, t2] (an exact tie of the two latest corners) that is t1, which is
+        // where the limit of a vanishing piece puts its time derivative.
+        let top = if self.kb.v() != 0.0 { t2 } else { t1 };
+        let mut h = self.total * cap_phi((xr - top).s(inv_s));
         // A piece much narrower than σ: its closed form below subtracts terms
         // ~ (span/δ)² larger than the result (~ (span/δ)³ in the derivative), so it is
         // integrated by 3-point Gauss–Legendre instead: W is cubic and φ varies by
@@ -211,7 +215,13 @@ impl Film {
                 (s, GAUSS_CUTOFF * s, s.min(self.width))
             }
         };
-        let p = Pulse::new(t, w, area, NARROW * scale);
+        // Box: pieces narrower than NARROW bins go (their mass moves by less). Gaussian:
+        // only empty pieces go; narrow ones take the quadrature branch of `gauss_cdf`.
+        // Dropping them there would leave the t2-derivative of its `W Φ((x − t2)/σ)` term
+        // uncancelled, splitting a tie's time derivative wrongly between its corners
+        // (found by the independent Dr.Jit reference, python/tests/test_vs_drjit.py).
+        let narrow = if sigma > 0.0 { 0.0 } else { NARROW * scale };
+        let p = Pulse::new(t, w, area, narrow);
         let [t0, t1, t2] = p.t;
         if t2.v() - t0.v() <= NARROW * scale {
             let wsum = p.w[0] + p.w[1] + p.w[2];

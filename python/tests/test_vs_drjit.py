@@ -34,7 +34,7 @@ import sys
 import pytest
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "validation"))
-import drjit_reference as R  # noqa: E402
+import drjit_cases as R  # noqa: E402
 
 TRANSIENT_TOL = 1e-5
 GRAD_TOL = 1e-4

@@ -1,6 +1,7 @@
 //! Files: transients to `.npy` (mitransient's layout) or OpenEXR, and PNG previews.
 
 pub mod exr_out;
+pub mod lct;
 pub mod preview;
 
 use crate::error::{Error, Result};

@@ -1,0 +1,52 @@
+//! Reading the Stanford LCT captures in ../shared/data/lct (the machine's shared data;
+//! UMBRA_LCT_DIR overrides the directory).
+
+use std::path::PathBuf;
+use umbra::io::lct::{read_lct, LCT_BIN_OPL};
+
+fn data_dir() -> PathBuf {
+    if let Ok(d) = std::env::var("UMBRA_LCT_DIR") {
+        return PathBuf::from(d);
+    }
+    let beside = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/lct");
+    if beside.is_dir() {
+        return beside;
+    }
+    PathBuf::from("/work/shared/data/lct")
+}
+
+#[test]
+fn diffuse_s_reads_with_its_geometry() {
+    let path = data_dir().join("data_diffuse_s.mat");
+    assert!(
+        path.is_file(),
+        "LCT data not found at {} (set UMBRA_LCT_DIR)",
+        path.display()
+    );
+    let c = read_lct(&path).unwrap();
+    assert_eq!(c.transient.shape, vec![64, 64, 2048]);
+    assert!(c.width > 0.1 && c.width < 2.0, "{}", c.width);
+    assert!((c.bin_width_opl - 1.1992e-3).abs() < 1e-6);
+    assert_eq!(c.bin_width_opl, LCT_BIN_OPL);
+    let t = &c.transient.data;
+    assert!(t.iter().all(|v| v.is_finite() && *v >= 0.0));
+    // Photon counts are integers, and past the residual direct light (the original code
+    // zeroes the first 600 bins) the hidden letter returns light.
+    assert!(t.iter().all(|v| v.fract() == 0.0));
+    let late: f64 = t
+        .chunks(2048)
+        .map(|h| h[600..].iter().map(|&v| v as f64).sum::<f64>())
+        .sum();
+    assert!(late > 0.0);
+}
+
+#[test]
+fn a_file_that_is_not_a_capture_is_a_clear_error() {
+    let dir = std::env::temp_dir().join(format!("umbra-lct-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bad = dir.join("bad.mat");
+    std::fs::write(&bad, b"not a mat file at all").unwrap();
+    let e = read_lct(&bad).unwrap_err().to_string();
+    assert!(e.contains("bad.mat") && e.contains("MATLAB"), "{e}");
+    std::fs::remove_dir_all(&dir).ok();
+}

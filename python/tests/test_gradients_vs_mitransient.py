@@ -58,28 +58,12 @@ SPP_MT, K_MT = 2048, 8       # mitransient: spp per seed, seeds
 SPP_U, K_U = 2048, 8         # Umbra
 Z_MAX = 3.5
 REL_TOL = 0.01
-DH_SEED = 20261122
+from adjoint_pattern import SEED as DH_SEED, adjoint_pattern  # noqa: E402
 
 
 def _selected(case_id: str) -> bool:
     sel = os.environ.get("UMBRA_XVAL_CASES")
     return not sel or any(tok and tok in case_id for tok in sel.split(","))
-
-
-def adjoint_pattern(shape=(16, 16, 256), seed: int = DH_SEED) -> np.ndarray:
-    """dL/dH: 0.5 + six random plane-wave cosines in (y, x, t) (scaled to unit std), float32.
-    Low frequencies (<= 1.5 cycles across the scan, 2-10 across the 256 bins), so every scan
-    point and time bin carries weight and a transposed, flipped or shifted layout changes L."""
-    rng = np.random.default_rng(seed)
-    sy, sx, nt = shape
-    y, x, t = np.meshgrid(np.arange(sy), np.arange(sx), np.arange(nt), indexing="ij")
-    f = np.zeros(shape)
-    for _ in range(6):
-        fy, fx = rng.uniform(-1.5, 1.5, 2)
-        ft = rng.uniform(2, 10)
-        ph = rng.uniform(0, 2 * np.pi)
-        f += rng.normal() * np.cos(2 * np.pi * (fy * y / sy + fx * x / sx + ft * t / nt) + ph)
-    return (0.5 + f / f.std()).astype(np.float32)
 
 
 # dH read in a wrong layout: the test prints how much each would change L (its "discrimination").

@@ -15,8 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from drjit_reference import (  # noqa: F401  (re-exported for the test)
-    ADJOINT_SEED, Result, SCENES, mc3, setup, tri3,
+    Result, SCENES, mc3, setup, tri3,
 )
+from adjoint_pattern import adjoint_pattern  # noqa: F401  (the test uses R.adjoint_pattern)
 
 # --------------------------------------------------------------------------------------
 # Scenes and comparison
@@ -124,21 +125,6 @@ def load(obj: str, capture: str, kernel: str, directory: str | None = None, **kw
     p = d / f"{obj}_{capture}_{kernel}.toml"
     p.write_text(scene_toml(obj, capture, kernel, obj_path, **kw))
     return umbra.load_scene(str(p))
-
-
-def adjoint_pattern(shape, seed: int = ADJOINT_SEED) -> np.ndarray:
-    """dL/dH: 0.5 + six random plane-wave cosines in (y, x, t), unit std, float32 (as in
-    test_gradients_vs_mitransient.py): every scan point and bin carries weight."""
-    rng = np.random.default_rng(seed)
-    sy, sx, nt = shape
-    y, x, tt = np.meshgrid(np.arange(sy), np.arange(sx), np.arange(nt), indexing="ij")
-    f = np.zeros(shape)
-    for _ in range(6):
-        fy, fx = rng.uniform(-1.5, 1.5, 2)
-        ft = rng.uniform(2, 10)
-        ph = rng.uniform(0, 2 * np.pi)
-        f += rng.normal() * np.cos(2 * np.pi * (fy * y / sy + fx * x / sx + ft * tt / nt) + ph)
-    return (0.5 + f / f.std()).astype(np.float32)
 
 
 def umbra_side(scene, adjoint, model: str, spp: int, seed: int) -> Result:

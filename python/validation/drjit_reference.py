@@ -70,7 +70,6 @@ HERE = Path(__file__).resolve().parent
 SCENES = HERE / "scenes"
 
 GAUSS_CUTOFF = 6.5        # Umbra's Gaussian truncation (src/film/mod.rs), in σ
-ADJOINT_SEED = 20261122   # the seed of test_gradients_vs_mitransient.py's adjoint pattern
 
 _DR = None
 

@@ -123,13 +123,6 @@ impl BoxPulse {
         }
     }
 
-    /// The pulse's total weight `A (w0 + w1 + w2) / 3`.
-    #[inline(always)]
-    pub fn total(&self) -> f32 {
-        let ([t0, t1, t2], d) = (self.t, self.d);
-        d + self.lower(t1 - t0) + self.upper(t2 - t1)
-    }
-
     /// Weighted area of the corner triangle at `v0` with `τ − t0 ≤ a`.
     #[inline(always)]
     fn lower(&self, a: f32) -> f32 {

@@ -2,7 +2,8 @@
 //! drawn in (pbrt-style records):
 //!
 //! - [`AreaDistribution`]: a triangle with probability `A_i / A`, then a uniform point on
-//!   it; `pdf_area = 1 / A` (hidden-geometry sampling, DESIGN §3 rung 2).
+//!   it; the record carries the triangle's probability `prob`, and `pdf_area = prob / A_i`
+//!   (`1 / A` at the mesh it was built for; hidden-geometry sampling, DESIGN §3 rung 2).
 //! - [`cosine_hemisphere`]: `pdf_solid_angle = cos θ / π` (BSDF sampling of a Lambertian
 //!   surface), by Shirley–Chiu's concentric disk mapping.
 //! - [`uniform_disk`]: a uniform point on a disk (a laser spot of finite size).
@@ -37,9 +38,9 @@ pub struct TriangleSample {
     pub tri: u32,
     /// Barycentrics `(b1, b2)`: the point is `(1-b1-b2) v0 + b1 v1 + b2 v2`.
     pub bary: [f32; 2],
-    /// Density with respect to surface area over all triangles (1/m²).
-    pub pdf_area: f32,
-    /// Probability of the triangle (`pdf_area` = `prob` / its area).
+    /// Probability of the triangle: the density with respect to area is `prob` over the
+    /// triangle's area (its *current* area, so that vertex gradients see the area factor
+    /// while the discrete choice stays fixed).
     pub prob: f32,
 }
 
@@ -101,10 +102,6 @@ impl AreaDistribution {
         self.prob[tri as usize]
     }
 
-    pub fn pdf_area(&self) -> f32 {
-        (1.0 / self.total) as f32
-    }
-
     /// A uniform point on the surfaces from one 2-D sample: `u[0]` picks the triangle and
     /// is then rescaled to [0, 1) within the triangle's share of the CDF, so the pair
     /// `(u[0]', u[1])` that places the point on the triangle keeps the stratification of
@@ -124,7 +121,6 @@ impl AreaDistribution {
         TriangleSample {
             tri: self.order[i],
             bary: uniform_triangle([u0, u[1]]),
-            pdf_area: self.pdf_area(),
             prob: width,
         }
     }

@@ -202,21 +202,6 @@ pub fn run_samples_with<S: Sink>(
     }
 }
 
-/// Cosines at a surface point with unit normal `n` between unit directions `to_a` and
-/// `to_b` (both pointing away from the point): `(|cos_a|, |cos_b|)` if light can scatter
-/// from one to the other there, `None` otherwise. A one-sided surface (Mitsuba's
-/// `diffuse`) scatters only on its front; a two-sided one on either side, never across.
-#[inline]
-pub fn scatter_cosines(n: Vec3, two_sided: bool, to_a: Vec3, to_b: Vec3) -> Option<(f32, f32)> {
-    let (ca, cb) = (n.dot(to_a), n.dot(to_b));
-    let ok = if two_sided {
-        ca * cb > 0.0
-    } else {
-        ca > 0.0 && cb > 0.0
-    };
-    ok.then_some((ca.abs(), cb.abs()))
-}
-
 /// A point of the laser spot: its centre, or a uniform point of the lit disk.
 #[inline]
 pub fn sample_spot(ctx: &MeasurementCtx, u: [f32; 2]) -> Vec3 {

@@ -117,16 +117,16 @@ fn technique_probabilities(tech: &Techniques, on_wall: bool) -> (f32, f32) {
     }
 }
 
-/// The continuation `x → y`: the throughput factor `f(x) cos θ_x cos θ_y / (d² q(y))`
-/// (`q` the one-sample MIS mixture's area density, `p_hg` hidden-geometry sampling's
-/// area density at `y`) and the segment's length.
+/// The continuation `x → y`: the throughput factor `f(x) cos θ_x cos θ_y / (d² q(y))`,
+/// the segment's length, and `q` itself (the one-sample MIS mixture's area density;
+/// `p_hg` is hidden-geometry sampling's area density at `y`).
 fn continuation<R: Real>(
     x: &Surf<R>,
     y_p: V3<R>,
     y_n: V3<R>,
     (c_bsdf, c_hg): (f32, f32),
     p_hg: R,
-) -> (R, R) {
+) -> (R, R, R) {
     let d = dual::sub(y_p, x.p);
     let d2 = dual::dot(d, d);
     let dist = d2.sqrt();
@@ -134,7 +134,7 @@ fn continuation<R: Real>(
     let cos_y = (dual::dot(y_n, d) / dist).abs();
     let p_bsdf = cos_x.s(FRAC_1_PI) * cos_y / d2;
     let q = p_bsdf.s(c_bsdf) + p_hg.s(c_hg);
-    (x.f * cos_x * cos_y / (d2 * q), dist)
+    (x.f * cos_x * cos_y / (d2 * q), dist, q)
 }
 
 /// Next-event estimation from `y` to the laser spot `x_l`:
@@ -323,7 +323,8 @@ pub fn sample<S: Sink>(
         } else {
             0.0
         };
-        let (factor, dist) = continuation(&x.s, y_p.to_array(), y_n.to_array(), techniques, p_hg);
+        let (factor, dist, q) =
+            continuation(&x.s, y_p.to_array(), y_n.to_array(), techniques, p_hg);
         beta *= factor;
         opl += dist;
         let y_vertex = PathVertex {
@@ -366,7 +367,7 @@ pub fn sample<S: Sink>(
                     (tri.point(bary), bary.map(|b| PathDual::c(b as f64)))
                 };
                 let p_hg_d = PathDual::c(hg_dist.prob(flat) as f64) / area;
-                let (fac, dist) = continuation(&rp.x, y, n, techniques, p_hg_d);
+                let (fac, dist, _) = continuation(&rp.x, y, n, techniques, p_hg_d);
                 rp.beta = rp.beta * fac;
                 rp.opl = rp.opl + dist;
                 let n_side = if back { n.map(|c| -c) } else { n };
@@ -379,7 +380,7 @@ pub fn sample<S: Sink>(
             };
             if on_wall {
                 let p_hg_d = PathDual::c(p_hg as f64);
-                let (fac, dist) = continuation(&rp.x, y_d, n_d, techniques, p_hg_d);
+                let (fac, dist, _) = continuation(&rp.x, y_d, n_d, techniques, p_hg_d);
                 rp.beta = rp.beta * fac;
                 rp.opl = rp.opl + dist;
                 rp.x = Surf {
@@ -399,7 +400,6 @@ pub fn sample<S: Sink>(
             {
                 // Balance heuristic between the continuation (density q, whichever
                 // technique drew y) and NEE (density 1/(π r²)) for this spot point.
-                let q = factor_density(&x.s, y_p, y_n, techniques, p_hg);
                 let w_mis = if tech.laser_sampling {
                     q / (q + 1.0 / spot_area)
                 } else {
@@ -505,23 +505,6 @@ pub fn sample<S: Sink>(
         scratch.vertices.push(y_vertex);
         x = y;
     }
-}
-
-/// The MIS mixture's area density `q(y)` of the continuation `x → y` (for the spot's
-/// emission MIS).
-fn factor_density(
-    x: &Surf<f32>,
-    y_p: Vec3,
-    y_n: Vec3,
-    (c_bsdf, c_hg): (f32, f32),
-    p_hg: f32,
-) -> f32 {
-    let d = y_p - Vec3::from_array(x.p);
-    let d2 = d.length_squared();
-    let dir = d / d2.sqrt();
-    let cos_x = Vec3::from_array(x.n_side).dot(dir);
-    let cos_y = y_n.dot(dir).abs();
-    c_bsdf * cos_x * FRAC_1_PI * cos_y / d2 + c_hg * p_hg
 }
 
 /// Emits a contribution whose last vertex (the laser spot) is `spot`; in the adjoint

@@ -16,6 +16,8 @@
 //! `G(k + 1) − G(k)` for eight pulses in a handful of vector instructions ([`splat_lanes`]);
 //! only differences are used, so the constant `Q(t2 − t1)` that makes `G` the CDF is dropped.
 
+use wide::{f32x8, CmpGt};
+
 /// Bins per step of the splat.
 pub const LANES: usize = 8;
 
@@ -146,60 +148,160 @@ impl BoxPulse {
     }
 }
 
-/// Step `m` of [`splat_lanes`]: `G(k_j + m + 1) − G(k_j + m)` for every lane.
-#[inline(always)]
-fn step(
-    pulses: &[BoxPulse; LANES],
-    first: &[i32; LANES],
-    prev: &mut [f32; LANES],
-    m: i32,
-) -> [f32; LANES] {
-    let mut add = [0.0f32; LANES];
-    for j in 0..LANES {
-        let g = pulses[j].cdf((first[j] + m + 1) as f32);
-        add[j] = g - prev[j];
-        prev[j] = g;
-    }
-    add
+/// Eight pulses, structure of arrays (the fields of [`BoxPulse`], lane `j` in `[j]`):
+/// what [`splat_lanes`] reads. A dead lane holds a zero pulse at 0, so it adds exact
+/// zeros wherever the splat evaluates it: [`PulseLanes::set`] and [`PulseLanes::kill`],
+/// the only writers, keep that so.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PulseLanes {
+    /// Sorted corner OPLs (bins).
+    t: [[f32; LANES]; 3],
+    /// `p0, p1, q0, q1, d` of [`BoxPulse`].
+    k: [[f32; LANES]; 5],
+    /// The lane holds a pulse with weight that can reach the film.
+    live: [bool; LANES],
 }
 
-/// Padding after a measurement's bins that lets [`splat_lanes`] skip its clamps and
+impl PulseLanes {
+    /// Puts `p` in lane `j`, or a zero pulse unless `live`. A pulse with a non-finite
+    /// corner is dead (written so that NaN fails). Branch-free, for lane loops.
+    #[inline(always)]
+    pub fn set(&mut self, j: usize, p: &BoxPulse, live: bool) {
+        let live = live & (p.t[0] >= f32::MIN) & (p.t[2] <= f32::MAX);
+        for i in 0..3 {
+            self.t[i][j] = select(live, p.t[i], 0.0);
+        }
+        for (k, v) in self.k.iter_mut().zip([p.p0, p.p1, p.q0, p.q1, p.d]) {
+            k[j] = select(live, v, 0.0);
+        }
+        self.live[j] = live;
+    }
+
+    /// Makes lane `j` dead.
+    pub fn kill(&mut self, j: usize) {
+        self.set(j, &BoxPulse::default(), false);
+    }
+
+    /// Sorted corner OPLs (bins), `t[corner][lane]`.
+    pub fn t(&self) -> &[[f32; LANES]; 3] {
+        &self.t
+    }
+
+    pub fn live(&self) -> &[bool; LANES] {
+        &self.live
+    }
+}
+
+/// `G` of the module doc for eight lanes in explicit vectors. (Written with plain
+/// lane loops, LLVM vectorises [`splat_window`]'s loop along the bins instead, with
+/// every lane's constants broadcast, which is slower.)
+struct LaneCdf {
+    t: [f32x8; 3],
+    k: [f32x8; 5],
+}
+
+impl LaneCdf {
+    #[inline(always)]
+    fn new(p: &PulseLanes) -> Self {
+        LaneCdf {
+            t: p.t.map(f32x8::new),
+            k: p.k.map(f32x8::new),
+        }
+    }
+
+    /// `G` of lane `j` at `x[j]`; 0 in dead lanes (a zero pulse at 0, no NaN).
+    #[inline(always)]
+    fn at(&self, x: f32x8) -> f32x8 {
+        let [t0, t1, t2] = self.t;
+        let [p0, p1, q0, q1, d] = self.k;
+        let zero = f32x8::ZERO;
+        let a = (x.fast_min(t1) - t0).fast_max(zero);
+        let b = (t2 - x.fast_max(t1)).fast_max(zero);
+        let step = x.cmp_gt(t1) & d;
+        a * a * p1.mul_add(a, p0) - b * b * q1.mul_add(b, q0) + step
+    }
+}
+
+/// Histogram rows: bin `b`'s value is the sum of `hist[b]` over its eight lanes
+/// ([`splat_lanes`] keeps lanes apart so no two of its stores depend on each other).
+pub type LaneRow = [f32; LANES];
+
+/// Windows longer than this many bins are splatted lane by lane ([`splat_scatter`]).
+pub const MAX_WINDOW: usize = 24;
+
+/// Padding after a measurement's bins that lets [`splat_scatter`] skip its clamps and
 /// bounds checks for pulses spanning fewer bins than this.
 pub const SPLAT_PAD: usize = 64;
 
-/// Adds the live ones of eight pulses into `hist[..bins]` through the box kernel.
-/// `hist` holds `bins + 1` values at least (`bins + SPLAT_PAD` for the fast path): past
-/// `bins` is scratch that takes dead lanes and the (exactly zero) differences past a
-/// pulse's end.
+/// Adds the live ones of eight pulses into `hist[..bins]` through the box kernel; bin
+/// `b` of the result is `hist[b].iter().sum()`. `hist` holds `bins + 1` rows at least
+/// (`bins + SPLAT_PAD` for the fast path): rows past `bins` are scratch.
 ///
-/// Lanes stay lanes: step `m` evaluates `G` at edge `k_j + m + 1` of every pulse `j` at
-/// once (`k_j` the first edge at or below the pulse) and adds `G(k_j + m + 1) − G(k_j + m)`
-/// to bin `k_j + m`, so eight pulses cost their longest one's bin count in vector steps
-/// plus one scalar add per lane and step. (Measured alternatives: one pulse at a time
-/// with eight bins per vector is slower, as neighbouring pulses' overlapping vector
-/// stores to the histogram stall on store forwarding.)
+/// Bin `b` receives `G(b + 1) − G(b)` of every pulse. The eight pulses of a block are
+/// neighbouring sub-triangles, so their OPL ranges overlap: over the window of bins that
+/// any of them reaches, [`splat_window`] evaluates `G` at each edge for all eight lanes
+/// at once and adds the differences to that bin's row with one vector add, no scatter.
+/// Wider windows (blocks straddling a fold or a row of the mesh) go to
+/// [`splat_scatter`], which walks each pulse's own bins.
 #[inline]
-pub fn splat_lanes(
-    pulses: &[BoxPulse; LANES],
-    live: &[bool; LANES],
-    bins: usize,
-    hist: &mut [f32],
-) {
+pub fn splat_lanes(p: &PulseLanes, bins: usize, hist: &mut [LaneRow]) {
+    match window_of(p, bins) {
+        Some((first, window)) if window <= MAX_WINDOW => splat_window(p, first, window, hist),
+        Some(_) => splat_scatter(p, bins, hist),
+        None => {}
+    }
+}
+
+/// The bins `first .. first + window` that the live lanes of `p` reach within
+/// `[0, bins)`; `None` without a live lane.
+#[inline(always)]
+fn window_of(p: &PulseLanes, bins: usize) -> Option<(usize, usize)> {
+    let nbins = bins as f32;
+    let (mut lo, mut hi) = (nbins, 0.0f32);
+    let mut any = false;
+    for j in 0..LANES {
+        let live = p.live[j];
+        any |= live;
+        lo = select(live, min(lo, p.t[0][j]), lo);
+        hi = select(live, max(hi, p.t[2][j]), hi);
+    }
+    // Clamped into [0, bins] (NaN picks a bound), so the conversions are exact.
+    let first = min(max(lo, 0.0), nbins) as usize;
+    let last = (max(min(hi, nbins - 1.0), 0.0) as usize).max(first);
+    any.then(|| (first, (last + 1 - first).min(bins - first)))
+}
+
+/// Bins `first .. first + window` of every lane: one vector `G` per edge, one vector
+/// add per bin.
+#[inline(always)]
+fn splat_window(p: &PulseLanes, first: usize, window: usize, hist: &mut [LaneRow]) {
+    let cdf = LaneCdf::new(p);
+    let mut x = f32x8::splat(first as f32);
+    let mut prev = cdf.at(x);
+    for row in &mut hist[first..first + window] {
+        x += f32x8::ONE;
+        let g = cdf.at(x);
+        *row = (f32x8::new(*row) + (g - prev)).to_array();
+        prev = g;
+    }
+}
+
+/// Each lane over its own bins: step `m` evaluates `G` at edge `k_j + m + 1` of every
+/// pulse `j` at once (`k_j` the first edge at or below the pulse) and adds
+/// `G(k_j + m + 1) − G(k_j + m)` to lane `j` of row `k_j + m`.
+fn splat_scatter(p: &PulseLanes, bins: usize, hist: &mut [LaneRow]) {
     let last = bins as i32;
     let hist_len = hist.len();
     assert!(
         hist_len > bins,
-        "splat_lanes: the histogram needs a scratch slot"
+        "splat_scatter: the histogram needs a scratch row"
     );
     let nbins = bins as f32;
     let mut first = [last; LANES];
     let mut span = [0i32; LANES];
     for j in 0..LANES {
-        let [t0, _, t2] = pulses[j].t;
-        // Written to reject NaN too; then both clamp into [0, bins] and convert exactly.
-        let inside = live[j] & (t2 >= 0.0) & (t0 < nbins);
-        // Clamped into [0, bins] whatever t0 and t2 are (NaN included: the comparisons
-        // then pick the bound), so the conversions are exact and never out of range.
+        let (t0, t2) = (p.t[0][j], p.t[2][j]);
+        let inside = p.live[j] & (t2 >= 0.0) & (t0 < nbins);
         let (lo, hi) = (min(max(t0, 0.0), nbins), max(min(t2, nbins), 0.0));
         // SAFETY: lo and hi are finite and in [0, bins], which i32 represents.
         let (k, end) = unsafe { (lo.to_int_unchecked::<i32>(), hi.to_int_unchecked::<i32>()) };
@@ -207,35 +309,26 @@ pub fn splat_lanes(
         // Past every edge at or below t2: a point mass at t1 = t2 = k lands in bin k.
         span[j] = if inside { end + 1 - k } else { 0 };
     }
-    let mut steps = 0;
-    for s in span {
-        steps = if s > steps { s } else { steps };
-    }
-    let mut prev = [0.0f32; LANES];
-    for j in 0..LANES {
-        prev[j] = pulses[j].cdf(first[j] as f32);
-    }
-    if (steps as usize) < SPLAT_PAD && hist_len >= bins + SPLAT_PAD {
-        // Every index first[j] + m is at most bins + steps - 1 < hist_len: lanes past
-        // their pulse's end add an exact 0, dead lanes write into the padding.
-        for m in 0..steps {
-            let add = step(pulses, &first, &mut prev, m);
-            for (j, a) in add.into_iter().enumerate() {
-                let i = (first[j] + m) as usize;
-                debug_assert!(i < hist_len);
-                // SAFETY: first[j] <= bins and m < steps < SPLAT_PAD, so
-                // i < bins + SPLAT_PAD <= hist_len (checked above).
-                unsafe { *hist.get_unchecked_mut(i) += a };
+    let steps = span.into_iter().max().unwrap_or(0);
+    let cdf = LaneCdf::new(p);
+    let mut prev = cdf.at(f32x8::new(first.map(|k| k as f32)));
+    let fast = (steps as usize) < SPLAT_PAD && hist_len >= bins + SPLAT_PAD;
+    for m in 0..steps {
+        let g = cdf.at(f32x8::new(first.map(|k| (k + m + 1) as f32)));
+        let add = (g - prev).to_array();
+        for (j, add) in add.into_iter().enumerate() {
+            let bin = first[j] + m;
+            if fast {
+                // Lanes past their pulse's end add an exact 0, dead lanes write into the
+                // padding: first[j] <= bins and m < steps < SPLAT_PAD.
+                debug_assert!((bin as usize) < hist_len);
+                // SAFETY: bin < bins + SPLAT_PAD <= hist_len (checked above).
+                unsafe { hist.get_unchecked_mut(bin as usize)[j] += add };
+            } else {
+                hist[if bin < last { bin } else { last } as usize][j] += add;
             }
         }
-    } else {
-        for m in 0..steps {
-            let add = step(pulses, &first, &mut prev, m);
-            for (j, a) in add.into_iter().enumerate() {
-                let bin = first[j] + m;
-                hist[if bin < last { bin } else { last } as usize] += a;
-            }
-        }
+        prev = g;
     }
 }
 
@@ -283,17 +376,33 @@ mod tests {
         }
     }
 
-    /// `pad` selects the fast path (SPLAT_PAD) or the clamped one (1).
-    fn splat_all(
-        pulses: &[BoxPulse; LANES],
-        live: &[bool; LANES],
-        bins: usize,
-        pad: usize,
-    ) -> Vec<f32> {
-        let mut h = vec![0.0; bins + pad];
-        splat_lanes(pulses, live, bins, &mut h);
-        h.truncate(bins);
-        h
+    /// The splat through each path: `(window, scatter with padding, scatter clamped)`.
+    fn splat_all(pulses: &PulseLanes, bins: usize) -> [Vec<f32>; 3] {
+        let sum = |h: Vec<LaneRow>| h[..bins].iter().map(|r| r.iter().sum()).collect();
+        let p = *pulses;
+        let mut window = vec![[0.0; LANES]; bins + 1];
+        if let Some((first, n)) = window_of(&p, bins) {
+            splat_window(&p, first, n, &mut window);
+        }
+        let mut fast = vec![[0.0; LANES]; bins + SPLAT_PAD];
+        splat_scatter(&p, bins, &mut fast);
+        let mut clamped = vec![[0.0; LANES]; bins + 1];
+        splat_scatter(&p, bins, &mut clamped);
+        // splat_lanes picks one of them.
+        let mut picked = vec![[0.0; LANES]; bins + SPLAT_PAD];
+        splat_lanes(pulses, bins, &mut picked);
+        let picked: Vec<f32> = sum(picked);
+        let all = [sum(window), sum(fast), sum(clamped)];
+        assert!(all.contains(&picked));
+        all
+    }
+
+    fn lanes(pulses: &[BoxPulse], live: &[bool]) -> PulseLanes {
+        let mut l = PulseLanes::default();
+        for (j, (p, &live)) in pulses.iter().zip(live).enumerate() {
+            l.set(j, p, live);
+        }
+        l
     }
 
     fn splat(p: BoxPulse, bins: usize) -> Vec<f32> {
@@ -303,13 +412,12 @@ mod tests {
         pulses[5] = p;
         live[5] = true;
         pulses[2] = BoxPulse::new([1.0, 2.0, f32::NAN], [1.0; 3], 1.0);
-        let fast = splat_all(&pulses, &live, bins, SPLAT_PAD);
-        assert_eq!(
-            fast,
-            splat_all(&pulses, &live, bins, 1),
-            "fast and clamped paths differ"
-        );
-        fast
+        pulses[3] = BoxPulse::new([-1e30, 2.0, f32::INFINITY], [1.0; 3], 1.0);
+        let [window, fast, clamped] = splat_all(&lanes(&pulses, &live), bins);
+        assert_eq!(fast, clamped, "fast and clamped scatter differ");
+        // One pulse: the same edges, the same differences.
+        assert_eq!(window, fast, "window and scatter differ");
+        window
     }
 
     #[test]
@@ -330,19 +438,48 @@ mod tests {
     #[test]
     fn bins_outside_pulses_stay_exactly_zero() {
         // Two pulses, one a point mass on an edge: empty bins must be 0, not rounding noise.
-        let mut pulses = [BoxPulse::default(); LANES];
-        pulses[0] = BoxPulse::new([3.3, 5.71, 4.2], [0.3, 1.1, 0.7], 0.37);
-        pulses[1] = BoxPulse::new([7.0, 7.0, 7.0], [1.0; 3], 0.5);
-        let mut h = vec![0.0; 41];
-        splat_lanes(
-            &pulses,
-            &[true, true, false, false, false, false, false, false],
-            40,
-            &mut h,
-        );
-        for (b, v) in h.iter().enumerate() {
-            assert_eq!(*v == 0.0, !(3..=7).contains(&b) || b == 6, "bin {b}: {v}");
+        let pulses = [
+            BoxPulse::new([3.3, 5.71, 4.2], [0.3, 1.1, 0.7], 0.37),
+            BoxPulse::new([7.0, 7.0, 7.0], [1.0; 3], 0.5),
+        ];
+        for h in splat_all(&lanes(&pulses, &[true, true]), 40) {
+            for (b, v) in h.iter().enumerate() {
+                assert_eq!(*v == 0.0, !(3..=7).contains(&b) || b == 6, "bin {b}: {v}");
+            }
+            assert!((h[7] - 0.5).abs() < 1e-7);
         }
-        assert!((h[7] - 0.5).abs() < 1e-7);
+    }
+
+    /// Eight overlapping pulses with a dead lane: the window and the scatter agree to
+    /// rounding (they sum the same differences in another order), and both match the
+    /// sum of single-pulse splats.
+    #[test]
+    fn window_and_scatter_agree_on_full_blocks() {
+        let mut pulses = [BoxPulse::default(); LANES];
+        for (j, p) in pulses.iter_mut().enumerate() {
+            let s = j as f32;
+            *p = BoxPulse::new(
+                [10.2 + 0.7 * s, 12.9 + 0.3 * s, 11.4 + 1.1 * s],
+                [1.0, 0.5 + 0.1 * s, 2.0],
+                0.1 + 0.01 * s,
+            );
+        }
+        let mut live = [true; LANES];
+        live[6] = false;
+        let [window, fast, clamped] = splat_all(&lanes(&pulses, &live), 48);
+        assert_eq!(fast, clamped);
+        let mut single = [0.0f32; 48];
+        for j in (0..LANES).filter(|&j| live[j]) {
+            for (s, v) in single.iter_mut().zip(splat(pulses[j], 48)) {
+                *s += v;
+            }
+        }
+        let total: f32 = single.iter().sum();
+        for b in 0..48 {
+            for h in [&window, &fast] {
+                assert!((h[b] - single[b]).abs() <= 1e-6 * total, "bin {b}");
+            }
+            assert_eq!(window[b] == 0.0, single[b] == 0.0, "bin {b}");
+        }
     }
 }

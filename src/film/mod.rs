@@ -20,7 +20,7 @@ mod adjoint_tests;
 mod box_pulse;
 mod pulse;
 
-pub use box_pulse::{splat_lanes, BoxPulse, LANES, SPLAT_PAD};
+pub use box_pulse::{splat_lanes, BoxPulse, LaneRow, PulseLanes, LANES, SPLAT_PAD};
 
 /// Half-width of the evaluated Gaussian support, in σ.
 pub const GAUSS_CUTOFF: f64 = 6.5;

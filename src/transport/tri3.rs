@@ -34,7 +34,7 @@
 
 use super::tri3_kernel::{self, PulseBlock, TriBlock, W};
 use super::MeasurementCtx;
-use crate::film::{splat_lanes, Film, SPLAT_PAD};
+use crate::film::{splat_lanes, Film, LaneRow, LANES, SPLAT_PAD};
 use crate::geometry::{HiddenTri, SceneGeometry};
 use crate::scene::{KernelSpec, Scene, Visibility};
 use glam::Vec3;
@@ -104,6 +104,7 @@ impl Tri3Mesh {
             let object = geom.flat_to_local[flat].0;
             m.push_subdivided(flat as u32, object, t, level, &mut shared);
         }
+        m.reorder(&tri3_kernel::block_order(&m.centroid));
         let corners = m.tris.iter().map(|tri| {
             (
                 tri.map(|i| m.vertices[i as usize]),
@@ -112,6 +113,21 @@ impl Tri3Mesh {
         });
         m.blocks = tri3_kernel::pack(corners, &m.normal, &m.plane, &m.area, &m.two_sided);
         m
+    }
+
+    /// Puts sub-triangle `order[k]` at `k`.
+    fn reorder(&mut self, order: &[usize]) {
+        fn apply<T: Copy>(v: &mut Vec<T>, order: &[usize]) {
+            *v = order.iter().map(|&k| v[k]).collect();
+        }
+        apply(&mut self.tris, order);
+        apply(&mut self.normal, order);
+        apply(&mut self.plane, order);
+        apply(&mut self.two_sided, order);
+        apply(&mut self.area, order);
+        apply(&mut self.centroid, order);
+        apply(&mut self.parent, order);
+        apply(&mut self.corner_bary, order);
     }
 
     pub fn len(&self) -> usize {
@@ -211,8 +227,9 @@ impl Tri3Mesh {
 pub struct Tri3Scratch {
     /// Per original triangle: visible from both wall points (centroid visibility).
     visible: Vec<bool>,
-    /// Box kernel: the measurement's bins and [`SPLAT_PAD`] of scratch.
-    hist32: Vec<f32>,
+    /// Box kernel: the measurement's bins, one row of eight lanes each, and
+    /// [`SPLAT_PAD`] rows of scratch.
+    hist32: Vec<LaneRow>,
     /// Gaussian kernel: the measurement's bins.
     hist64: Vec<f64>,
 }
@@ -235,7 +252,7 @@ pub fn render_measurement(
         scratch.hist64.resize(bins, 0.0);
     } else {
         scratch.hist32.clear();
-        scratch.hist32.resize(bins + SPLAT_PAD, 0.0);
+        scratch.hist32.resize(bins + SPLAT_PAD, [0.0; LANES]);
     }
     let frame = tri3_kernel::frame(ctx, film);
     let confocal = frame.confocal();
@@ -248,20 +265,24 @@ pub fn render_measurement(
         }
         if visibility != Visibility::None {
             for j in 0..W {
-                if pulses.live[j] {
-                    pulses.live[j] = mesh.visible(b * W + j, ctx, visibility, &scratch.visible);
+                if pulses.lanes.live()[j]
+                    && !mesh.visible(b * W + j, ctx, visibility, &scratch.visible)
+                {
+                    pulses.lanes.kill(j);
                 }
             }
         }
         if gaussian {
-            for j in (0..W).filter(|&j| pulses.live[j]) {
-                let opl = pulses.t.map(|t| film.start + t[j] as f64 * film.width);
+            for j in (0..W).filter(|&j| pulses.lanes.live()[j]) {
+                let opl = pulses
+                    .lanes
+                    .t()
+                    .map(|t| film.start + t[j] as f64 * film.width);
                 let w = pulses.w.map(|w| w[j] as f64);
                 film.splat_triangle(opl, w, pulses.area[j] as f64, &mut scratch.hist64);
             }
         } else {
-            let lanes = std::array::from_fn(|j| pulses.pulse(j));
-            splat_lanes(&lanes, &pulses.live, bins, &mut scratch.hist32);
+            splat_lanes(&pulses.lanes, bins, &mut scratch.hist32);
         }
     }
     let scale = ctx.power * ctx.f_wall * ctx.f_wall;
@@ -271,7 +292,7 @@ pub fn render_measurement(
         }
     } else {
         for (o, h) in out.iter_mut().zip(&scratch.hist32) {
-            *o += h * scale;
+            *o += h.iter().sum::<f32>() * scale;
         }
     }
 }

@@ -1,0 +1,1 @@
+//! Isotropic remeshing (placeholder for the remeshing module).

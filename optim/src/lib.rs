@@ -3,7 +3,15 @@
 //! that returns a loss and its gradient with respect to the vertex positions and
 //! per-vertex values. Umbra implements it (`umbra::fit`); tests here use toy objectives.
 
+pub mod adam;
+pub mod checkpoint;
+pub mod fit;
+pub mod laplacian;
 pub mod mesh;
+pub mod problem;
 pub mod remesh;
 
+pub use adam::Adam;
+pub use fit::{fit, FitError, FitOutcome, ObjectiveFactory, Schedule, SolverKind, Stage};
 pub use mesh::Mesh;
+pub use problem::{Evaluation, MeshObjective, MeshProblem, ProblemSettings};

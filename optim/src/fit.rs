@@ -1,0 +1,314 @@
+//! The fit: a schedule of stages, each an argmin run on a fixed topology, with the mesh
+//! remeshed between stages and everything checkpointed so a killed fit resumes where it
+//! stood and ends where an uninterrupted one does.
+//!
+//! Stage `s` runs [`Adam`] (noisy Monte Carlo gradients) or argmin's L-BFGS with a
+//! Moré–Thuente line search (the noise-free `tri3` model) on the [`MeshProblem`] of the
+//! stage's objective (the renderer at the stage's resolution, from the
+//! [`ObjectiveFactory`]) for `iters` iterations.
+//!
+//! Files in the checkpoint directory, each written atomically:
+//! - `stage.bin`: the stage to run next, the mesh it starts from (after remeshing), the
+//!   loss history and counters so far;
+//! - `solver-<s>.bin`: argmin's solver and iteration state for stage `s` plus the loss
+//!   history, every `checkpoint_every` iterations (named per stage, so a stale file of
+//!   an earlier stage is never loaded into a later one).
+//!
+//! Determinism: a stage's objective must give the same result for the same parameters
+//! (Umbra seeds its samples from the parameters), so the resumed and the uninterrupted
+//! runs evaluate the same sequence.
+
+use crate::adam::Adam;
+use crate::checkpoint::{write_atomic, History, LossRecord, SolverCheckpoint};
+use crate::mesh::Mesh;
+use crate::problem::{Breakdown, MeshObjective, MeshProblem, ProblemSettings};
+use argmin::core::observers::{Observe, ObserverMode};
+use argmin::core::{Error, Executor, IterState, State as _, KV};
+use argmin::solver::linesearch::MoreThuenteLineSearch;
+use argmin::solver::quasinewton::LBFGS;
+use serde::{Deserialize, Serialize};
+use std::cell::RefCell;
+use std::path::{Path, PathBuf};
+use std::rc::Rc;
+
+/// The optimiser of a stage.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SolverKind {
+    /// Adam, for Monte Carlo gradients.
+    #[default]
+    Adam,
+    /// L-BFGS with a Moré–Thuente line search, for the noise-free `tri3` model.
+    Lbfgs,
+}
+
+/// One stage of the schedule.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Stage {
+    /// Iterations of the optimiser.
+    pub iters: u64,
+    #[serde(default)]
+    pub solver: SolverKind,
+    /// Adam's step size, in the units of the parameters (m for positions).
+    #[serde(default = "default_lr")]
+    pub lr: f64,
+    /// `λ` of the large-steps parameterisation `u = (I + λL) x` (0: off).
+    #[serde(default)]
+    pub large_steps: f64,
+    /// Weight of the Laplacian smoothness term.
+    #[serde(default)]
+    pub laplacian: f64,
+    /// Fit per-vertex albedo too.
+    #[serde(default)]
+    pub fit_albedo: bool,
+    /// Remesh to this target edge length (m) before the stage.
+    #[serde(default)]
+    pub remesh: Option<f64>,
+    /// Sum this many time bins of the measurement (and the render) into one.
+    #[serde(default = "one")]
+    pub time_downsample: u32,
+    /// Average `k x k` blocks of scan points.
+    #[serde(default = "one")]
+    pub scan_downsample: u32,
+    /// Light-transport model for this stage (the renderer's name; `None`: the fit's).
+    #[serde(default)]
+    pub model: Option<String>,
+    /// Samples per measurement for Monte Carlo models (`None`: the fit's).
+    #[serde(default)]
+    pub spp: Option<u32>,
+}
+
+fn default_lr() -> f64 {
+    0.01
+}
+
+fn one() -> u32 {
+    1
+}
+
+/// The stages, in order.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Schedule {
+    #[serde(rename = "stage")]
+    pub stages: Vec<Stage>,
+    /// Iterations between solver checkpoints.
+    #[serde(default = "default_every")]
+    pub checkpoint_every: u64,
+}
+
+fn default_every() -> u64 {
+    5
+}
+
+/// Builds each stage's objective (the renderer set up at the stage's resolution).
+pub trait ObjectiveFactory {
+    fn objective(&mut self, stage: &Stage, index: usize) -> Result<Box<dyn MeshObjective>, String>;
+}
+
+/// Remeshes between stages: `(mesh, target edge) -> mesh`.
+pub type Remesher<'a> = &'a dyn Fn(&Mesh, f64) -> Result<Mesh, String>;
+
+#[derive(Debug, thiserror::Error)]
+pub enum FitError {
+    #[error("{0}")]
+    Io(String),
+    #[error("stage {stage}: {message}")]
+    Stage { stage: usize, message: String },
+    #[error("interrupted at iteration {iteration}; the last checkpoint is in {dir} (run again with --resume)")]
+    Interrupted { iteration: u64, dir: PathBuf },
+}
+
+/// What [`fit`] returns.
+#[derive(Clone, Debug)]
+pub struct FitOutcome {
+    pub mesh: Mesh,
+    pub history: Vec<LossRecord>,
+    /// Optimiser steps rejected (non-finite cost or failed render), all stages.
+    pub rejected_steps: u64,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct StageFile {
+    stage: usize,
+    mesh: Mesh,
+    history: Vec<LossRecord>,
+    rejected: u64,
+}
+
+fn io_err(path: &Path, e: impl std::fmt::Display) -> FitError {
+    FitError::Io(format!("{}: {e}", path.display()))
+}
+
+fn save_stage(path: &Path, s: &StageFile) -> Result<(), FitError> {
+    let bytes = postcard::to_stdvec(s).map_err(|e| io_err(path, e))?;
+    write_atomic(path, &bytes).map_err(|e| io_err(path, e))
+}
+
+/// Called after every iteration with its record; returning `false` stops the fit (a
+/// checkpoint of the last multiple of `checkpoint_every` stays for `--resume`).
+pub type Progress = Rc<RefCell<dyn FnMut(&LossRecord) -> bool>>;
+
+struct FitObserver {
+    stage: usize,
+    offset: u64,
+    history: History,
+    last: Rc<RefCell<Breakdown>>,
+    progress: Progress,
+}
+
+type State = IterState<Vec<f64>, Vec<f64>, (), (), (), f64>;
+
+impl Observe<State> for FitObserver {
+    fn observe_iter(&mut self, state: &State, _kv: &KV) -> Result<(), Error> {
+        let last = self.last.borrow().clone();
+        let record = LossRecord {
+            iteration: self.offset + state.get_iter() + 1,
+            stage: self.stage,
+            cost: state.get_cost(),
+            data_loss: last.data_loss,
+            smoothness: last.smoothness,
+            report: last.report,
+        };
+        self.history.borrow_mut().push(record.clone());
+        if (self.progress.borrow_mut())(&record) {
+            Ok(())
+        } else {
+            Err(Error::msg("interrupted"))
+        }
+    }
+}
+
+/// Runs `schedule` from `initial` (or, with `resume`, from the checkpoints in `dir`).
+pub fn fit(
+    initial: &Mesh,
+    schedule: &Schedule,
+    factory: &mut dyn ObjectiveFactory,
+    remesher: Remesher,
+    dir: &Path,
+    resume: bool,
+    progress: Progress,
+) -> Result<FitOutcome, FitError> {
+    let stage_path = dir.join("stage.bin");
+    let mut current = if resume {
+        let bytes = std::fs::read(&stage_path).map_err(|e| {
+            io_err(
+                &stage_path,
+                format!("cannot resume: {e} (no checkpoint here?)"),
+            )
+        })?;
+        postcard::from_bytes::<StageFile>(&bytes)
+            .map_err(|e| io_err(&stage_path, format!("not a readable checkpoint: {e}")))?
+    } else {
+        if stage_path.exists() {
+            return Err(io_err(
+                &stage_path,
+                "a checkpoint of an earlier fit is here: pass --resume to continue it, or choose another output directory",
+            ));
+        }
+        let first = schedule.stages.first();
+        let mesh = match first.and_then(|s| s.remesh) {
+            Some(edge) => {
+                remesher(initial, edge).map_err(|message| FitError::Stage { stage: 0, message })?
+            }
+            None => initial.clone(),
+        };
+        let s = StageFile {
+            stage: 0,
+            mesh,
+            history: Vec::new(),
+            rejected: 0,
+        };
+        save_stage(&stage_path, &s)?;
+        s
+    };
+    while current.stage < schedule.stages.len() {
+        let index = current.stage;
+        let stage = &schedule.stages[index];
+        let stage_err = |message: String| FitError::Stage {
+            stage: index,
+            message,
+        };
+        let objective = factory.objective(stage, index).map_err(stage_err)?;
+        let settings = ProblemSettings {
+            large_steps: stage.large_steps,
+            laplacian: stage.laplacian,
+            fit_values: stage.fit_albedo,
+        };
+        let problem = MeshProblem::new(objective, &current.mesh, settings);
+        let theta0 = problem.encode(&current.mesh);
+        let history: History = Rc::new(RefCell::new(current.history.clone()));
+        let observer = FitObserver {
+            stage: index,
+            offset: current.history.len() as u64,
+            history: history.clone(),
+            last: problem.last_handle(),
+            progress: progress.clone(),
+        };
+        let checkpoint = SolverCheckpoint {
+            path: dir.join(format!("solver-{index}.bin")),
+            every: schedule.checkpoint_every,
+            history: history.clone(),
+        };
+        let run = |e: Error| -> FitError {
+            if e.to_string() == "interrupted" {
+                FitError::Interrupted {
+                    iteration: history.borrow().len() as u64,
+                    dir: dir.to_path_buf(),
+                }
+            } else {
+                stage_err(e.to_string())
+            }
+        };
+        let (problem, theta, rejected) = match stage.solver {
+            SolverKind::Adam => {
+                let res = Executor::new(problem, Adam::new(stage.lr))
+                    .configure(|s| s.param(theta0).max_iters(stage.iters))
+                    .add_observer(observer, ObserverMode::Always)
+                    .checkpointing(checkpoint)
+                    .run()
+                    .map_err(run)?;
+                let theta = res.state.param.clone();
+                let rejected = res.solver.rejected;
+                (res.problem.problem, theta, rejected)
+            }
+            SolverKind::Lbfgs => {
+                let ls = MoreThuenteLineSearch::new();
+                let res = Executor::new(problem, LBFGS::new(ls, 7))
+                    .configure(|s| s.param(theta0).max_iters(stage.iters))
+                    .add_observer(observer, ObserverMode::Always)
+                    .checkpointing(checkpoint)
+                    .run()
+                    .map_err(run)?;
+                let theta = res.state.best_param.clone().or(res.state.param.clone());
+                (res.problem.problem, theta, 0)
+            }
+        };
+        let problem = problem.ok_or_else(|| stage_err("argmin lost the problem".into()))?;
+        let theta =
+            theta.ok_or_else(|| stage_err("the optimiser returned no parameters".into()))?;
+        let mesh = problem.decode(&theta).map_err(stage_err)?;
+        let next = index + 1;
+        let mesh = match schedule.stages.get(next).and_then(|s| s.remesh) {
+            Some(edge) => remesher(&mesh, edge).map_err(|message| FitError::Stage {
+                stage: next,
+                message,
+            })?,
+            None => mesh,
+        };
+        current = StageFile {
+            stage: next,
+            mesh,
+            history: history.borrow().clone(),
+            rejected: current.rejected + rejected,
+        };
+        save_stage(&stage_path, &current)?;
+        let _ = std::fs::remove_file(dir.join(format!("solver-{index}.bin")));
+    }
+    Ok(FitOutcome {
+        mesh: current.mesh,
+        history: current.history,
+        rejected_steps: current.rejected,
+    })
+}

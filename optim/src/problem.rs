@@ -1,0 +1,260 @@
+//! The optimisation problem argmin sees: a parameter vector `θ = [u_x, u_y, u_z, a]`
+//! (`u = (I + λL) x` the large-steps coordinates of the vertex positions `x`, one block
+//! per axis; `a` the per-vertex values, present when they are fitted) and the cost
+//!
+//! `C(θ) = loss(x, clamp(a, 0, 1)) + w ‖L x‖² / (V h²)`
+//!
+//! with `loss` from the renderer ([`MeshObjective`]) and the smoothness term of
+//! [`crate::laplacian`]. The gradient maps back through the parameterisation:
+//! `∂C/∂u = (I + λL)⁻¹ ∂C/∂x`, and `∂C/∂a = ∂loss/∂a` inside `[0, 1]` (0 outside, where
+//! the clamp holds). Cost and gradient are separate calls in argmin; one render serves
+//! both (the last evaluation is cached by its exact parameter vector).
+//!
+//! Deterministic: the CG solves start from fixed guesses (not the previous solution), so
+//! the same `θ` gives the same mesh whatever came before it, which resuming relies on.
+
+use crate::laplacian::{join_axes, mean_edge, smoothness, split_axes, Laplacian};
+use crate::mesh::Mesh;
+use argmin::core::{CostFunction, Error, Gradient};
+use std::cell::RefCell;
+use std::rc::Rc;
+
+/// What a renderer gives the fit: the loss of a mesh against the measurement and its
+/// gradient.
+pub trait MeshObjective {
+    /// The loss of `mesh` and its gradient with respect to every vertex position and,
+    /// when `mesh.vertex_values` is not empty, every vertex value. An `Err` (bad
+    /// geometry, a render that failed) makes the optimiser reject the step.
+    fn evaluate(&mut self, mesh: &Mesh) -> Result<Evaluation, String>;
+}
+
+/// One evaluation of a [`MeshObjective`].
+#[derive(Clone, Debug, Default)]
+pub struct Evaluation {
+    pub loss: f64,
+    pub d_vertices: Vec<[f64; 3]>,
+    /// Empty unless the mesh has vertex values.
+    pub d_values: Vec<f64>,
+    /// Whatever the objective wants reported per iteration (e.g. the fitted intensity
+    /// scale), as `(name, value)`.
+    pub report: Vec<(String, f64)>,
+}
+
+/// The regularisation and parameterisation of a stage.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ProblemSettings {
+    /// `λ` of the large-steps operator `I + λ L` (0: plain vertex positions).
+    pub large_steps: f64,
+    /// Weight `w` of the smoothness term.
+    pub laplacian: f64,
+    /// Fit the per-vertex values (albedo) too.
+    pub fit_values: bool,
+}
+
+/// The last evaluation, for observers.
+#[derive(Clone, Debug, Default)]
+pub struct Breakdown {
+    pub data_loss: f64,
+    pub smoothness: f64,
+    pub report: Vec<(String, f64)>,
+}
+
+struct Cache {
+    param: Vec<f64>,
+    cost: f64,
+    grad: Vec<f64>,
+}
+
+/// argmin's view of one fitting stage (fixed topology).
+pub struct MeshProblem {
+    objective: RefCell<Box<dyn MeshObjective>>,
+    template: Mesh,
+    lap: Laplacian,
+    settings: ProblemSettings,
+    /// Reference edge length `h` of the smoothness term (the stage's initial mean edge).
+    h: f64,
+    cache: RefCell<Option<Cache>>,
+    last: Rc<RefCell<Breakdown>>,
+}
+
+impl MeshProblem {
+    /// The problem for `mesh`'s topology; `mesh` also fixes `h`.
+    pub fn new(
+        objective: Box<dyn MeshObjective>,
+        mesh: &Mesh,
+        settings: ProblemSettings,
+    ) -> MeshProblem {
+        let mut template = mesh.clone();
+        if settings.fit_values && template.vertex_values.is_empty() {
+            template.vertex_values = vec![1.0; template.vertices.len()];
+        }
+        MeshProblem {
+            objective: RefCell::new(objective),
+            lap: Laplacian::new(mesh),
+            h: mean_edge(mesh).max(1e-9),
+            template,
+            settings,
+            cache: RefCell::new(None),
+            last: Rc::new(RefCell::new(Breakdown::default())),
+        }
+    }
+
+    pub fn settings(&self) -> &ProblemSettings {
+        &self.settings
+    }
+
+    /// The breakdown of the last evaluation.
+    pub fn last(&self) -> Breakdown {
+        self.last.borrow().clone()
+    }
+
+    /// A handle on the breakdown of the last evaluation, for an observer.
+    pub fn last_handle(&self) -> Rc<RefCell<Breakdown>> {
+        self.last.clone()
+    }
+
+    /// `θ` for `mesh` (same topology as the template).
+    pub fn encode(&self, mesh: &Mesh) -> Vec<f64> {
+        let n = mesh.vertices.len();
+        let mut theta = Vec::with_capacity(4 * n);
+        let mut mx = vec![0.0; n];
+        for x in split_axes(&mesh.vertices) {
+            self.lap.apply(&x, &mut mx);
+            theta.extend(
+                x.iter()
+                    .zip(&mx)
+                    .map(|(x, l)| x + self.settings.large_steps * l),
+            );
+        }
+        if self.settings.fit_values {
+            if mesh.vertex_values.len() == n {
+                theta.extend(&mesh.vertex_values);
+            } else {
+                theta.extend(&self.template.vertex_values);
+            }
+        }
+        theta
+    }
+
+    /// The mesh of `θ`: solves `(I + λL) x = u` per axis.
+    pub fn decode(&self, theta: &[f64]) -> Result<Mesh, String> {
+        let n = self.template.vertices.len();
+        let want = n * if self.settings.fit_values { 4 } else { 3 };
+        if theta.len() != want {
+            return Err(format!(
+                "parameter vector has {} values, expected {want}",
+                theta.len()
+            ));
+        }
+        if let Some(i) = theta.iter().position(|v| !v.is_finite()) {
+            return Err(format!("parameter {i} is not finite"));
+        }
+        let axes = [0, 1, 2].map(|k| {
+            let u = &theta[k * n..(k + 1) * n];
+            let mut x = u.to_vec();
+            if self.settings.large_steps > 0.0 {
+                self.lap
+                    .solve_m(self.settings.large_steps, u, &mut x, 1e-12);
+            }
+            x
+        });
+        let mut mesh = self.template.clone();
+        mesh.vertices = join_axes(&axes);
+        if self.settings.fit_values {
+            mesh.vertex_values = theta[3 * n..].iter().map(|a| a.clamp(0.0, 1.0)).collect();
+        }
+        if let Some(i) = mesh
+            .vertices
+            .iter()
+            .position(|p| p.iter().any(|c| !c.is_finite()))
+        {
+            return Err(format!("vertex {i} is not finite"));
+        }
+        Ok(mesh)
+    }
+
+    /// Cost and gradient at `θ`, through the cache.
+    pub fn evaluate(&self, theta: &[f64]) -> Result<(f64, Vec<f64>), String> {
+        if let Some(c) = self.cache.borrow().as_ref() {
+            if c.param == theta {
+                return Ok((c.cost, c.grad.clone()));
+            }
+        }
+        let mesh = self.decode(theta)?;
+        let eval = self.objective.borrow_mut().evaluate(&mesh)?;
+        let n = mesh.vertices.len();
+        if eval.d_vertices.len() != n
+            || (self.settings.fit_values && eval.d_values.len() != n)
+            || !eval.loss.is_finite()
+        {
+            return Err(
+                "the objective returned a non-finite loss or a wrong-sized gradient".into(),
+            );
+        }
+        let mut dx = eval.d_vertices.clone();
+        let smooth = if self.settings.laplacian > 0.0 {
+            let mut g = vec![[0.0; 3]; n];
+            let r = smoothness(&self.lap, &mesh.vertices, self.h, &mut g);
+            for (d, g) in dx.iter_mut().zip(&g) {
+                for k in 0..3 {
+                    d[k] += self.settings.laplacian * g[k];
+                }
+            }
+            self.settings.laplacian * r
+        } else {
+            0.0
+        };
+        let mut grad = Vec::with_capacity(theta.len());
+        for axis in split_axes(&dx) {
+            let mut du = vec![0.0; n];
+            if self.settings.large_steps > 0.0 {
+                self.lap
+                    .solve_m(self.settings.large_steps, &axis, &mut du, 1e-12);
+            } else {
+                du = axis;
+            }
+            grad.extend(du);
+        }
+        if self.settings.fit_values {
+            let a = &theta[3 * n..];
+            grad.extend(eval.d_values.iter().zip(a).map(|(&d, &a)| {
+                if (0.0..=1.0).contains(&a) {
+                    d
+                } else {
+                    0.0
+                }
+            }));
+        }
+        if grad.iter().any(|g| !g.is_finite()) {
+            return Err("the gradient is not finite".into());
+        }
+        let cost = eval.loss + smooth;
+        *self.last.borrow_mut() = Breakdown {
+            data_loss: eval.loss,
+            smoothness: smooth,
+            report: eval.report,
+        };
+        *self.cache.borrow_mut() = Some(Cache {
+            param: theta.to_vec(),
+            cost,
+            grad: grad.clone(),
+        });
+        Ok((cost, grad))
+    }
+}
+
+impl CostFunction for MeshProblem {
+    type Param = Vec<f64>;
+    type Output = f64;
+    fn cost(&self, theta: &Vec<f64>) -> Result<f64, Error> {
+        self.evaluate(theta).map(|(c, _)| c).map_err(Error::msg)
+    }
+}
+
+impl Gradient for MeshProblem {
+    type Param = Vec<f64>;
+    type Gradient = Vec<f64>;
+    fn gradient(&self, theta: &Vec<f64>) -> Result<Vec<f64>, Error> {
+        self.evaluate(theta).map(|(_, g)| g).map_err(Error::msg)
+    }
+}

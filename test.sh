@@ -38,5 +38,14 @@ if [ "${UMBRA_SKIP_TORCH:-0}" != "1" ] && ! .venv/bin/python -c "import importli
     .venv/bin/pip install -q torch
 fi
 
+# y-tal (pins numpy < 2) gets its own venv: python/tests/test_ytal.py reads Umbra's .hdf5
+# renders with y-tal's own reader through .venv-ytal/bin/python.
+if ! .venv-ytal/bin/python -c "import tal" 2>/dev/null; then
+    echo "== creating .venv-ytal with y-tal"
+    python3 -m venv .venv-ytal
+    .venv-ytal/bin/pip install -q --upgrade pip
+    .venv-ytal/bin/pip install -q y-tal==0.20.0
+fi
+
 echo "== python tests"
 UMBRA_BIN="$PWD/target/release/umbra" .venv/bin/python -m pytest -q python/tests "$@"

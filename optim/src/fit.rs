@@ -62,6 +62,9 @@ pub struct Stage {
     /// Fit per-vertex albedo too.
     #[serde(default)]
     pub fit_albedo: bool,
+    /// Albedo steps are this many times `lr` (albedo is in [0, 1], positions in m).
+    #[serde(default = "default_albedo_step")]
+    pub albedo_step: f64,
     /// Remesh to this target edge length (m) before the stage.
     #[serde(default)]
     pub remesh: Option<f64>,
@@ -81,6 +84,10 @@ pub struct Stage {
 
 fn default_lr() -> f64 {
     0.01
+}
+
+fn default_albedo_step() -> f64 {
+    10.0
 }
 
 fn one() -> u32 {
@@ -235,6 +242,7 @@ pub fn fit(
             large_steps: stage.large_steps,
             laplacian: stage.laplacian,
             fit_values: stage.fit_albedo,
+            value_scale: stage.albedo_step,
         };
         let problem = MeshProblem::new(objective, &current.mesh, settings);
         let theta0 = problem.encode(&current.mesh);

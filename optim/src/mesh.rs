@@ -23,3 +23,55 @@ impl Mesh {
         }
     }
 }
+
+impl Mesh {
+    /// The mesh as Wavefront OBJ text (`v` lines in vertex order, 1-based `f` lines);
+    /// vertex values, when present, follow each `v` as a grey vertex colour.
+    pub fn to_obj(&self) -> String {
+        let mut s = String::with_capacity(40 * (self.vertices.len() + self.faces.len()));
+        s.push_str("# written by umbra fit\n");
+        for (i, p) in self.vertices.iter().enumerate() {
+            match self.vertex_values.get(i) {
+                Some(a) => s.push_str(&format!("v {} {} {} {a} {a} {a}\n", p[0], p[1], p[2])),
+                None => s.push_str(&format!("v {} {} {}\n", p[0], p[1], p[2])),
+            }
+        }
+        for f in &self.faces {
+            s.push_str(&format!("f {} {} {}\n", f[0] + 1, f[1] + 1, f[2] + 1));
+        }
+        s
+    }
+}
+
+impl Mesh {
+    /// The faces whose mean vertex value is at least `threshold` times the largest
+    /// vertex value, with unreferenced vertices removed (the mesh itself when it has no
+    /// vertex values). A fitted albedo near zero marks surface the data do not support.
+    pub fn without_dark_faces(&self, threshold: f64) -> Mesh {
+        if self.vertex_values.len() != self.vertices.len() {
+            return self.clone();
+        }
+        let max = self.vertex_values.iter().cloned().fold(0.0, f64::max);
+        let keep: Vec<[u32; 3]> = self
+            .faces
+            .iter()
+            .filter(|f| f.iter().map(|&i| self.vertex_values[i as usize]).sum::<f64>() / 3.0 >= threshold * max)
+            .cloned()
+            .collect();
+        let mut remap = vec![u32::MAX; self.vertices.len()];
+        let mut out = Mesh::default();
+        for f in &keep {
+            let g = f.map(|i| {
+                let r = &mut remap[i as usize];
+                if *r == u32::MAX {
+                    *r = out.vertices.len() as u32;
+                    out.vertices.push(self.vertices[i as usize]);
+                    out.vertex_values.push(self.vertex_values[i as usize]);
+                }
+                *r
+            });
+            out.faces.push(g);
+        }
+        out
+    }
+}

@@ -2,12 +2,12 @@
 //! (`u = (I + λL) x` the large-steps coordinates of the vertex positions `x`, one block
 //! per axis; `a` the per-vertex values, present when they are fitted) and the cost
 //!
-//! `C(θ) = loss(x, clamp(a, 0, 1)) + w ‖L x‖² / (V h²)`
+//! `C(θ) = loss(x, clamp(κ a', 0, 1)) + w ‖L x‖² / (V h²)`, `a'` the values over `κ`
 //!
 //! with `loss` from the renderer ([`MeshObjective`]) and the smoothness term of
 //! [`crate::laplacian`]. The gradient maps back through the parameterisation:
-//! `∂C/∂u = (I + λL)⁻¹ ∂C/∂x`, and `∂C/∂a = ∂loss/∂a` inside `[0, 1]` (0 outside, where
-//! the clamp holds). Cost and gradient are separate calls in argmin; one render serves
+//! `∂C/∂u = (I + λL)⁻¹ ∂C/∂x`, and `∂C/∂a' = κ ∂loss/∂a` inside `[0, 1]` (0 outside,
+//! where the clamp holds). Cost and gradient are separate calls in argmin; one render serves
 //! both (the last evaluation is cached by its exact parameter vector).
 //!
 //! Deterministic: the CG solves start from fixed guesses (not the previous solution), so
@@ -49,6 +49,9 @@ pub struct ProblemSettings {
     pub laplacian: f64,
     /// Fit the per-vertex values (albedo) too.
     pub fit_values: bool,
+    /// `κ`: the values enter `θ` as `a / κ`, so an optimiser step of size `η` in `θ`
+    /// moves them by `κ η` (albedo wants larger steps than positions in metres).
+    pub value_scale: f64,
 }
 
 /// The last evaluation, for observers.
@@ -108,6 +111,14 @@ impl MeshProblem {
         self.last.borrow().clone()
     }
 
+    fn value_scale(&self) -> f64 {
+        if self.settings.value_scale > 0.0 {
+            self.settings.value_scale
+        } else {
+            1.0
+        }
+    }
+
     /// A handle on the breakdown of the last evaluation, for an observer.
     pub fn last_handle(&self) -> Rc<RefCell<Breakdown>> {
         self.last.clone()
@@ -127,10 +138,11 @@ impl MeshProblem {
             );
         }
         if self.settings.fit_values {
+            let k = self.value_scale();
             if mesh.vertex_values.len() == n {
-                theta.extend(&mesh.vertex_values);
+                theta.extend(mesh.vertex_values.iter().map(|a| a / k));
             } else {
-                theta.extend(&self.template.vertex_values);
+                theta.extend(self.template.vertex_values.iter().map(|a| a / k));
             }
         }
         theta
@@ -161,7 +173,8 @@ impl MeshProblem {
         let mut mesh = self.template.clone();
         mesh.vertices = join_axes(&axes);
         if self.settings.fit_values {
-            mesh.vertex_values = theta[3 * n..].iter().map(|a| a.clamp(0.0, 1.0)).collect();
+            let k = self.value_scale();
+            mesh.vertex_values = theta[3 * n..].iter().map(|a| (k * a).clamp(0.0, 1.0)).collect();
         }
         if let Some(i) = mesh
             .vertices

@@ -95,6 +95,7 @@ fn stage(iters: u64, solver: SolverKind, lr: f64) -> Stage {
         large_steps: 4.0,
         laplacian: 0.0,
         fit_albedo: false,
+        albedo_step: 10.0,
         remesh: None,
         time_downsample: 1,
         scan_downsample: 1,

@@ -16,6 +16,10 @@ use umbra::transport::{Progress, RenderOptions, Renderer};
 mod grad_cli;
 use grad_cli::{bench_grad, grad, gradcheck, GradArgs, GradcheckArgs};
 
+/// `umbra fit`.
+#[path = "umbra_cli/fit.rs"]
+mod fit_cli;
+
 #[derive(Parser)]
 #[command(
     name = "umbra",
@@ -37,10 +41,25 @@ enum Command {
     /// Check the adjoint gradient against central finite differences with common random
     /// numbers on a few random parameters; exits non-zero above the tolerance.
     Gradcheck(GradcheckArgs),
+    /// Fit the hidden mesh to a measured transient (with no --measured: render a target
+    /// from the scene's hidden objects with the path model and fit that, a
+    /// demonstration with a known answer).
+    Fit(FitCliArgs),
     /// Built-in benchmarks: `tri3` (speed on the 10k-triangle reference case and the
     /// error-vs-subdivision table); `grad` (adjoint against forward time, and the
     /// adjoint's peak memory against spp).
     Bench(BenchArgs),
+}
+
+#[derive(clap::Args)]
+struct FitCliArgs {
+    /// Scene (TOML or Mitsuba XML); default: the built-in default scene.
+    scene: Option<PathBuf>,
+    /// Mitsuba-style defines for XML scenes, NAME=VALUE.
+    #[arg(short = 'D', long = "define")]
+    define: Vec<String>,
+    #[command(flatten)]
+    fit: fit_cli::FitArgs,
 }
 
 #[derive(clap::Args)]
@@ -68,8 +87,8 @@ struct BenchArgs {
 struct RenderArgs {
     /// Scene file: Umbra TOML (.toml) or mitransient-style Mitsuba XML (.xml).
     scene: Option<PathBuf>,
-    /// Output file: .npy (mitransient's layout, default) or .exr. PNG previews are
-    /// written next to it.
+    /// Output file: .npy (mitransient's layout, default), .exr or .hdf5 / .h5 (y-tal's
+    /// capture format). PNG previews are written next to it.
     #[arg(short, long, default_value = "transient.npy")]
     output: PathBuf,
     /// Light-transport model: tri3 (deterministic per-triangle three-bounce), mc3 (Monte
@@ -127,6 +146,8 @@ fn main() {
         Command::Bench(args) => bench(args),
         Command::Grad(args) => grad(args),
         Command::Gradcheck(args) => gradcheck(args),
+        Command::Fit(args) => load_scene(args.scene.as_deref(), &args.define)
+            .and_then(|scene| fit_cli::fit(args.fit, scene)),
     };
     if let Err(e) = result {
         eprintln!("error: {e}");
@@ -275,7 +296,7 @@ fn render(args: RenderArgs) -> umbra::Result<()> {
     bar.finish_and_clear();
     let transient = result?;
     let secs = start.elapsed().as_secs_f64();
-    umbra::io::write_transient(&args.output, &transient)?;
+    umbra::io::write_capture(&args.output, &transient, &scene)?;
     let mut previews = Vec::new();
     if !args.no_preview {
         previews = umbra::io::preview::write_previews(&args.output, &transient)?;

@@ -2,14 +2,34 @@
 
 pub mod exr_out;
 pub mod lct;
+pub mod measured;
+pub mod plot;
 pub mod preview;
+pub mod ytal;
 
 use crate::error::{Error, Result};
 use crate::transport::Transient;
 use ndarray::{ArrayD, IxDyn};
 use std::path::Path;
 
-/// Writes a transient; the format follows the extension (`.npy` default, `.exr`).
+/// Writes a render of `scene`; the format follows the extension: `.hdf5` / `.h5` (y-tal's
+/// capture format, which needs the scene's geometry), else as [`write_transient`].
+pub fn write_capture(path: &Path, t: &Transient, scene: &crate::scene::Scene) -> Result<()> {
+    if is_hdf5(path) {
+        ytal::write_ytal(path, t, scene)
+    } else {
+        write_transient(path, t)
+    }
+}
+
+fn is_hdf5(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("hdf5") || e.eq_ignore_ascii_case("h5"))
+}
+
+/// Writes a transient; the format follows the extension (`.npy` default, `.exr`; `.hdf5`
+/// needs the scene: [`write_capture`]).
 pub fn write_transient(path: &Path, t: &Transient) -> Result<()> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
@@ -22,8 +42,12 @@ pub fn write_transient(path: &Path, t: &Transient) -> Result<()> {
     {
         Some("exr") => exr_out::write(path, t),
         Some("npy") | None => write_npy(path, t),
+        Some("hdf5" | "h5") => Err(Error::Invalid(format!(
+            "{}: a y-tal .hdf5 capture needs the scene's geometry (io::write_capture)",
+            path.display()
+        ))),
         Some(other) => Err(Error::Invalid(format!(
-            "{}: unknown output format '.{other}' (use .npy or .exr)",
+            "{}: unknown output format '.{other}' (use .npy, .exr or .hdf5)",
             path.display()
         ))),
     }

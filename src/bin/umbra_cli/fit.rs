@@ -1,0 +1,223 @@
+//! `umbra fit`: fits the hidden mesh to a measured transient (or, with no `--measured`,
+//! to a target rendered from the scene's own hidden objects, as a demonstration with a
+//! known answer).
+
+use indicatif::{ProgressBar, ProgressStyle};
+use std::cell::RefCell;
+use std::path::{Path, PathBuf};
+use std::rc::Rc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use umbra::fit::{default_schedule, FitConfig, Init};
+use umbra::geometry::SceneGeometry;
+use umbra::scene::{Model, Scene};
+use umbra::transport::{RenderOptions, Renderer};
+use umbra::{Error, Result};
+
+#[derive(clap::Args)]
+pub struct FitArgs {
+    /// The measurement: `.npy` (the scene's output layout), y-tal `.hdf5`, or a Stanford
+    /// LCT `.mat` (their capture geometry replaces the scene's). Without it, a target is
+    /// rendered from the scene's hidden objects with the `path` model and fitted from
+    /// the initial mesh, and the result is compared with the truth.
+    #[arg(long)]
+    pub measured: Option<PathBuf>,
+    /// Output directory: mesh.obj, mesh_all.obj, loss.csv, loss.png, transients.png,
+    /// checkpoint/.
+    #[arg(short, long, default_value = "out/fit")]
+    pub output: PathBuf,
+    /// Initial mesh: plane, sphere, or scene (the scene's hidden objects).
+    #[arg(long, default_value = "plane")]
+    pub init: String,
+    /// Schedule TOML ([[stage]] tables: iters, solver, lr, large_steps, laplacian,
+    /// fit_albedo, albedo_step, remesh, time_downsample, scan_downsample, model, spp).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Total iterations, shared among the stages in the schedule's proportions.
+    #[arg(long)]
+    pub iters: Option<u64>,
+    /// Continue the fit whose checkpoint is in the output directory.
+    #[arg(long)]
+    pub resume: bool,
+    /// Model the stages use unless they name one: tri3 (default), mc3, path.
+    #[arg(long, default_value = "tri3")]
+    pub model: String,
+    /// Samples per measurement for Monte Carlo stages.
+    #[arg(long, default_value_t = 16)]
+    pub spp: u32,
+    /// The measurement has Umbra's absolute scale: do not fit an intensity scale.
+    #[arg(long)]
+    pub known_scale: bool,
+    /// Samples per measurement of the demonstration target (no `--measured`).
+    #[arg(long, default_value_t = 256)]
+    pub target_spp: u32,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// No progress bar.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+fn load_schedule(args: &FitArgs) -> Result<optim::Schedule> {
+    let mut schedule = match &args.config {
+        Some(path) => {
+            let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+            toml::from_str(&text).map_err(|e| Error::scene(path, format!("not a fit schedule: {e}")))?
+        }
+        None => default_schedule(),
+    };
+    if schedule.stages.is_empty() {
+        return Err(Error::Invalid("the schedule has no [[stage]]".into()));
+    }
+    if let Some(total) = args.iters {
+        let old: u64 = schedule.stages.iter().map(|s| s.iters).sum::<u64>().max(1);
+        for s in &mut schedule.stages {
+            s.iters = (s.iters * total).div_ceil(old).max(1);
+        }
+    }
+    Ok(schedule)
+}
+
+fn to_mesh(scene: &Scene) -> Result<optim::Mesh> {
+    let mut m = optim::Mesh::default();
+    for o in &scene.objects {
+        let base = m.vertices.len() as u32;
+        m.vertices.extend(o.mesh.positions.iter().map(|p| [p.x as f64, p.y as f64, p.z as f64]));
+        m.faces.extend(o.mesh.triangles.iter().map(|t| t.map(|i| i + base)));
+    }
+    if m.faces.is_empty() {
+        return Err(Error::Invalid("--init scene: the scene has no hidden mesh".into()));
+    }
+    Ok(m)
+}
+
+/// The demonstration target: the scene's hidden objects through the `path` model.
+fn render_target(scene: &Scene, spp: u32, out: &Path) -> Result<Vec<f32>> {
+    let geom = SceneGeometry::build(scene);
+    let opts = RenderOptions {
+        model: Model::Path,
+        spp,
+        ..RenderOptions::from_scene(scene)
+    };
+    let t = Renderer::new(scene, &geom, &opts)?.render(None)?;
+    umbra::io::write_npy(&out.join("target.npy"), &t)?;
+    Ok(t.data)
+}
+
+pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
+    let schedule = load_schedule(&args)?;
+    let model = Model::parse(&args.model)
+        .filter(|m| *m != Model::Auto)
+        .ok_or_else(|| Error::Invalid(format!("--model: '{}' is not one of tri3, mc3, path", args.model)))?;
+    std::fs::create_dir_all(&args.output).map_err(|e| Error::io(&args.output, e))?;
+    if let Some(t) = args.threads {
+        // The fit drives the renderer from this thread (its progress callback is not
+        // Send), so the thread count goes to rayon's global pool.
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(t.max(1))
+            .build_global()
+            .map_err(|e| Error::Invalid(format!("thread pool: {e}")))?;
+    }
+    let (scene, measured, truth) = match &args.measured {
+        Some(path) => {
+            let m = umbra::io::measured::read_measured(path)?;
+            let scene = m.scene_for(&scene)?;
+            m.check_against(&scene)?;
+            (scene, m.transient.data, None)
+        }
+        None => {
+            let truth = to_mesh(&scene)?;
+            eprintln!(
+                "umbra fit: no --measured: rendering the scene's hidden objects ({} triangles) with the path model at {} spp as the target",
+                truth.faces.len(),
+                args.target_spp
+            );
+            let data = render_target(&scene, args.target_spp, &args.output)?;
+            (scene, data, Some(truth))
+        }
+    };
+    let init = match args.init.as_str() {
+        "plane" => Init::Plane,
+        "sphere" => Init::Sphere,
+        "scene" => Init::Mesh(to_mesh(&scene)?),
+        other => {
+            return Err(Error::Invalid(format!(
+                "--init: '{other}' is not one of plane, sphere, scene"
+            )))
+        }
+    };
+    let cfg = FitConfig {
+        schedule,
+        init,
+        model,
+        spp: args.spp.max(1),
+        fit_scale: !args.known_scale,
+        two_sided: true,
+        albedo: scene.objects.first().map_or(0.8, |o| o.albedo),
+        resume: args.resume,
+    };
+    let total: u64 = cfg.schedule.stages.iter().map(|s| s.iters).sum();
+    let bar = if args.quiet {
+        ProgressBar::hidden()
+    } else {
+        let b = ProgressBar::new(total);
+        b.set_style(
+            ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} it  {msg}")
+                .expect("template"),
+        );
+        b
+    };
+    let cancel = Arc::new(AtomicBool::new(false));
+    {
+        let c = cancel.clone();
+        let _ = ctrlc::set_handler(move || {
+            if c.swap(true, Ordering::Relaxed) {
+                std::process::exit(130);
+            }
+        });
+    }
+    let (b, c) = (bar.clone(), cancel.clone());
+    let progress: optim::fit::Progress = Rc::new(RefCell::new(move |r: &optim::checkpoint::LossRecord| {
+        b.set_position(r.iteration);
+        b.set_message(format!("stage {} loss {:.4e}", r.stage, r.data_loss));
+        !c.load(Ordering::Relaxed)
+    }));
+    let report = umbra::fit::fit(&scene, &measured, &cfg, &args.output, progress);
+    bar.finish_and_clear();
+    let report = match report {
+        Err(Error::Cancelled) => {
+            eprintln!(
+                "umbra fit: interrupted; the checkpoint in {} resumes with --resume",
+                args.output.join("checkpoint").display()
+            );
+            std::process::exit(130);
+        }
+        r => r?,
+    };
+    println!(
+        "umbra fit: {} iterations in {:.1} s, final relative L2 {:.4e} (scale {:.4}), {} vertices / {} faces{} -> {}",
+        report.history.len(),
+        report.seconds,
+        report.final_loss,
+        report.scale,
+        report.mesh.vertices.len(),
+        report.mesh.faces.len(),
+        if report.rejected_steps > 0 {
+            format!(", {} steps rejected", report.rejected_steps)
+        } else {
+            String::new()
+        },
+        report.files.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
+    );
+    if let Some(truth) = truth {
+        let c = umbra::fit::metrics::chamfer(&report.mesh, &truth, 4000);
+        println!(
+            "umbra fit: Chamfer distance to the true mesh {:.2} mm (fit->truth {:.2} mm, truth->fit {:.2} mm)",
+            1e3 * c.symmetric,
+            1e3 * c.fit_to_truth,
+            1e3 * c.truth_to_fit
+        );
+    }
+    Ok(())
+}

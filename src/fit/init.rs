@@ -1,0 +1,106 @@
+//! Initial meshes for a fit: a plane or a sphere in front of the wall, centred on the
+//! scan area, at the depth the measurement's first strong returns imply.
+//!
+//! Depth: the OPL `τ₅₀` at which the transient summed over all scan points first reaches
+//! half its maximum; a hidden point at distance `d` straight in front of a confocal scan
+//! point returns at `τ = 2d`, so `d ≈ τ₅₀ / 2` (for single capture `τ ≈ d_l + d_s`, the
+//! same to first order). The first/last legs are removed when the scene counts them.
+
+use crate::geometry::shapes::icosphere;
+use crate::scene::Scene;
+use glam::Vec3;
+use optim::Mesh;
+
+/// Distance of the hidden scene from the wall implied by `measured` (m).
+pub fn depth_from_data(scene: &Scene, measured: &[f32]) -> Option<f32> {
+    let bins = scene.film.temporal_bins as usize;
+    let mut total = vec![0.0f64; bins];
+    for row in measured.chunks_exact(bins) {
+        for (t, v) in total.iter_mut().zip(row) {
+            *t += *v as f64;
+        }
+    }
+    let max = total.iter().cloned().fold(0.0, f64::max);
+    if max <= 0.0 {
+        return None;
+    }
+    let b = total.iter().position(|&v| v >= 0.5 * max)?;
+    let mut opl = scene.film.start_opl + (b as f32 + 0.5) * scene.film.bin_width_opl;
+    if scene.account_first_and_last_bounces {
+        let (x_l, x_s) = scene.measurement_points(0);
+        opl -= (scene.laser.origin - x_l).length() + (scene.detector.origin - x_s).length();
+    }
+    (opl > 0.0).then_some(0.5 * opl)
+}
+
+/// The scan area's centre on the wall, the wall normal, and the area's half extents.
+fn scan_frame(scene: &Scene) -> (Vec3, Vec3, Vec3, Vec3) {
+    let s = &scene.scan;
+    (
+        s.center,
+        scene.wall.normal(),
+        0.5 * s.axis_u,
+        0.5 * s.axis_v,
+    )
+}
+
+/// An `n x n` grid of side `size` (fraction of the scan area), parallel to the wall at
+/// `depth`, its triangles facing the wall.
+pub fn plane(scene: &Scene, depth: f32, size: f32, n: usize) -> Mesh {
+    let (c, normal, hu, hv) = scan_frame(scene);
+    let centre = c + depth * normal;
+    let n = n.max(1);
+    let mut vertices = Vec::with_capacity((n + 1) * (n + 1));
+    for j in 0..=n {
+        for i in 0..=n {
+            let (s, t) = (
+                2.0 * i as f32 / n as f32 - 1.0,
+                2.0 * j as f32 / n as f32 - 1.0,
+            );
+            let p = centre + size * (s * hu + t * hv);
+            vertices.push([p.x as f64, p.y as f64, p.z as f64]);
+        }
+    }
+    let id = |i: usize, j: usize| (j * (n + 1) + i) as u32;
+    let mut faces = Vec::with_capacity(2 * n * n);
+    for j in 0..n {
+        for i in 0..n {
+            // (u, v, normal) is right-handed, so (i,j) → (i,j+1) → (i+1,j+1) turns
+            // clockwise seen from the wall: the face normal points back at the wall.
+            faces.push([id(i, j), id(i, j + 1), id(i + 1, j + 1)]);
+            faces.push([id(i, j), id(i + 1, j + 1), id(i + 1, j)]);
+        }
+    }
+    Mesh::new(vertices, faces)
+}
+
+/// An icosphere of `radius` centred `depth + radius` in front of the scan centre.
+pub fn sphere(scene: &Scene, depth: f32, radius: f32, level: u32) -> Mesh {
+    let (c, normal, _, _) = scan_frame(scene);
+    let m = icosphere(c + (depth + radius) * normal, radius, level);
+    Mesh::new(
+        m.positions
+            .iter()
+            .map(|p| [p.x as f64, p.y as f64, p.z as f64])
+            .collect(),
+        m.triangles,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::default::default_scene;
+
+    #[test]
+    fn plane_faces_the_wall() {
+        let scene = default_scene().unwrap();
+        let m = plane(&scene, 0.5, 0.5, 3);
+        let n_w = scene.wall.normal();
+        for f in &m.faces {
+            let p = f.map(|i| Vec3::from_array(m.vertices[i as usize].map(|c| c as f32)));
+            let n = (p[1] - p[0]).cross(p[2] - p[0]);
+            assert!(n.dot(n_w) < 0.0, "a face looks away from the wall");
+        }
+    }
+}

@@ -1,0 +1,164 @@
+//! How close a fitted surface is to the true one: the symmetric Chamfer distance
+//!
+//! `C(A, B) = ½ (mean_{a ∈ S_A} d(a, B) + mean_{b ∈ S_B} d(b, A))`,
+//!
+//! `S_X` a fixed, area-stratified set of points on surface `X` and `d(p, Y)` the exact
+//! distance from `p` to the nearest point of `Y`'s triangles (m). Also the one-sided
+//! means and the 90th percentiles, since a fit can cover the truth well and still have
+//! a stray flap (or the reverse).
+
+use glam::DVec3;
+use optim::Mesh;
+use rayon::prelude::*;
+
+/// Chamfer distance and its parts (m).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Chamfer {
+    pub symmetric: f64,
+    /// Mean distance from the fitted surface to the truth.
+    pub fit_to_truth: f64,
+    /// Mean distance from the truth to the fitted surface.
+    pub truth_to_fit: f64,
+    pub fit_to_truth_p90: f64,
+    pub truth_to_fit_p90: f64,
+}
+
+fn tri(m: &Mesh, f: usize) -> [DVec3; 3] {
+    m.faces[f].map(|i| DVec3::from_array(m.vertices[i as usize]))
+}
+
+/// `n` points on `m`, area-weighted: each triangle gets points in proportion to its area
+/// on a low-discrepancy (R2) sequence of barycentric coordinates.
+pub fn sample_surface(m: &Mesh, n: usize) -> Vec<DVec3> {
+    let areas: Vec<f64> = (0..m.faces.len())
+        .map(|f| {
+            let [a, b, c] = tri(m, f);
+            0.5 * (b - a).cross(c - a).length()
+        })
+        .collect();
+    let total: f64 = areas.iter().sum();
+    if total <= 0.0 || n == 0 {
+        return Vec::new();
+    }
+    let mut points = Vec::with_capacity(n);
+    let (g1, g2) = (0.754_877_666_246_692_8, 0.569_840_290_998_053_3);
+    let mut carry = 0.0;
+    let mut k = 0usize;
+    for (f, a) in areas.iter().enumerate() {
+        carry += a / total * n as f64;
+        let count = carry.floor() as usize;
+        carry -= count as f64;
+        let [p0, p1, p2] = tri(m, f);
+        for _ in 0..count {
+            k += 1;
+            let (mut u, mut v) = ((0.5 + g1 * k as f64).fract(), (0.5 + g2 * k as f64).fract());
+            if u + v > 1.0 {
+                (u, v) = (1.0 - u, 1.0 - v);
+            }
+            points.push(p0 + u * (p1 - p0) + v * (p2 - p0));
+        }
+    }
+    points
+}
+
+/// Distance from `p` to the triangle `[a, b, c]` (the closest-point regions of Ericson,
+/// Real-Time Collision Detection §5.1.5, written out here).
+pub fn point_triangle_distance(p: DVec3, [a, b, c]: [DVec3; 3]) -> f64 {
+    let (ab, ac, ap) = (b - a, c - a, p - a);
+    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return ap.length();
+    }
+    let bp = p - b;
+    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
+    if d3 >= 0.0 && d4 <= d3 {
+        return bp.length();
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return (p - (a + d1 / (d1 - d3) * ab)).length();
+    }
+    let cp = p - c;
+    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
+    if d6 >= 0.0 && d5 <= d6 {
+        return cp.length();
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return (p - (a + d2 / (d2 - d6) * ac)).length();
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        return (p - (b + w * (c - b))).length();
+    }
+    let denom = 1.0 / (va + vb + vc);
+    let (v, w) = (vb * denom, vc * denom);
+    (p - (a + v * ab + w * ac)).length()
+}
+
+fn distances(points: &[DVec3], m: &Mesh) -> Vec<f64> {
+    let tris: Vec<[DVec3; 3]> = (0..m.faces.len()).map(|f| tri(m, f)).collect();
+    points
+        .par_iter()
+        .map(|&p| {
+            tris.iter()
+                .map(|&t| point_triangle_distance(p, t))
+                .fold(f64::INFINITY, f64::min)
+        })
+        .collect()
+}
+
+fn mean_p90(mut d: Vec<f64>) -> (f64, f64) {
+    if d.is_empty() {
+        return (f64::NAN, f64::NAN);
+    }
+    let mean = d.iter().sum::<f64>() / d.len() as f64;
+    d.sort_by(f64::total_cmp);
+    (mean, d[(0.9 * (d.len() - 1) as f64).round() as usize])
+}
+
+/// The Chamfer distance between `fit` and `truth` with `n` sample points on each.
+pub fn chamfer(fit: &Mesh, truth: &Mesh, n: usize) -> Chamfer {
+    let (f2t, f2t90) = mean_p90(distances(&sample_surface(fit, n), truth));
+    let (t2f, t2f90) = mean_p90(distances(&sample_surface(truth, n), fit));
+    Chamfer {
+        symmetric: 0.5 * (f2t + t2f),
+        fit_to_truth: f2t,
+        truth_to_fit: t2f,
+        fit_to_truth_p90: f2t90,
+        truth_to_fit_p90: t2f90,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn square(z: f64) -> Mesh {
+        Mesh::new(
+            vec![[0.0, 0.0, z], [1.0, 0.0, z], [1.0, 1.0, z], [0.0, 1.0, z]],
+            vec![[0, 1, 2], [0, 2, 3]],
+        )
+    }
+
+    #[test]
+    fn parallel_squares_are_their_gap_apart() {
+        let c = chamfer(&square(0.0), &square(0.01), 500);
+        assert!((c.symmetric - 0.01).abs() < 1e-12, "{c:?}");
+        assert!(chamfer(&square(0.0), &square(0.0), 500).symmetric < 1e-12);
+    }
+
+    #[test]
+    fn point_triangle_regions() {
+        let t = [DVec3::ZERO, DVec3::X, DVec3::Y];
+        assert!((point_triangle_distance(DVec3::new(0.2, 0.2, 0.5), t) - 0.5).abs() < 1e-12);
+        assert!(
+            (point_triangle_distance(DVec3::new(-1.0, -1.0, 0.0), t) - 2f64.sqrt()).abs() < 1e-12
+        );
+        assert!(
+            (point_triangle_distance(DVec3::new(1.0, 1.0, 0.0), t) - 0.5f64.sqrt()).abs() < 1e-12
+        );
+        assert!((point_triangle_distance(DVec3::new(0.5, -2.0, 0.0), t) - 2.0).abs() < 1e-12);
+    }
+}

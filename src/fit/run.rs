@@ -1,0 +1,361 @@
+//! A whole fit: the initial mesh, the schedule's stages through `optim::fit` with
+//! Umbra's renderer as the objective, and the outputs in the output directory:
+//!
+//! - `mesh.obj`: the fitted surface (world space, m; faces fitted dark dropped), and
+//!   `mesh_all.obj` with every face and its albedo as vertex colour;
+//! - `loss.csv` and `loss.png`: the loss per iteration (data term and total), stage
+//!   boundaries marked;
+//! - `transients.png`: measured and fitted transients side by side (streak images of
+//!   the middle scan row, the fitted one times the fitted scale), and their difference;
+//! - `checkpoint/`: the resumable state (see `optim::fit`).
+
+use super::init::{depth_from_data, plane, sphere};
+use super::objective::UmbraObjective;
+use super::resolution::at_resolution;
+use crate::error::{Error, Result};
+use crate::io::plot::{log_chart, side_by_side, Series};
+use crate::scene::{CaptureType, Model, Scene};
+use crate::transport::RenderOptions;
+use optim::checkpoint::{write_atomic, LossRecord};
+use optim::fit::{FitError, Progress};
+use optim::{Mesh, MeshObjective, ObjectiveFactory, Schedule, SolverKind, Stage};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Faces darker than this fraction of the brightest vertex are dropped from `mesh.obj`.
+pub const DARK: f64 = 0.25;
+
+/// Where the fit starts.
+#[derive(Clone, Debug)]
+pub enum Init {
+    /// A square grid parallel to the wall at the data's depth.
+    Plane,
+    /// An icosphere in front of the scan centre at the data's depth.
+    Sphere,
+    /// A given mesh (e.g. the scene's hidden object).
+    Mesh(Mesh),
+}
+
+/// Settings of a fit besides the schedule.
+#[derive(Clone, Debug)]
+pub struct FitConfig {
+    pub schedule: Schedule,
+    pub init: Init,
+    /// The model stages use unless they name their own (`auto` means `tri3`).
+    pub model: Model,
+    pub spp: u32,
+    /// Fit the intensity scale in closed form (real data); false when the measurement's
+    /// absolute scale matches Umbra's radiometry.
+    pub fit_scale: bool,
+    pub two_sided: bool,
+    /// Albedo of the fitted surface (absorbed by the scale when that is fitted).
+    pub albedo: f32,
+    pub resume: bool,
+}
+
+/// What a fit produced.
+#[derive(Clone, Debug)]
+pub struct FitReport {
+    /// The fitted surface: [`FitReport::full_mesh`] without faces whose fitted albedo
+    /// is below [`DARK`] of the brightest.
+    pub mesh: Mesh,
+    pub full_mesh: Mesh,
+    pub history: Vec<LossRecord>,
+    pub seconds: f64,
+    /// Relative L2 of the final mesh's render (times `scale`) at full resolution.
+    pub final_loss: f64,
+    pub scale: f64,
+    pub rejected_steps: u64,
+    pub files: Vec<PathBuf>,
+}
+
+/// The default coarse-to-fine schedule: Adam on a coarse grid (time bins x4, scan
+/// points x2), Adam at half time resolution, then L-BFGS at full resolution.
+pub fn default_schedule() -> Schedule {
+    let stage = |iters, solver, lr, large_steps, time, scan, fit_albedo| Stage {
+        iters,
+        solver,
+        lr,
+        large_steps,
+        laplacian: 0.0,
+        fit_albedo,
+        albedo_step: 10.0,
+        remesh: None,
+        time_downsample: time,
+        scan_downsample: scan,
+        model: None,
+        spp: None,
+    };
+    Schedule {
+        stages: vec![
+            stage(60, SolverKind::Adam, 0.01, 20.0, 4, 2, false),
+            stage(60, SolverKind::Adam, 0.004, 10.0, 2, 1, true),
+            stage(30, SolverKind::Lbfgs, 0.0, 10.0, 1, 1, true),
+        ],
+        checkpoint_every: 5,
+    }
+}
+
+struct Factory<'a> {
+    scene: &'a Scene,
+    measured: &'a [f32],
+    cfg: &'a FitConfig,
+}
+
+impl Factory<'_> {
+    fn build(&self, stage: &Stage) -> Result<UmbraObjective> {
+        let (scene, measured) = at_resolution(
+            self.scene,
+            self.measured,
+            stage.time_downsample,
+            stage.scan_downsample,
+        )?;
+        let model = match &stage.model {
+            Some(name) => Model::parse(name).ok_or_else(|| {
+                Error::Invalid(format!("stage model '{name}': expected tri3, mc3 or path"))
+            })?,
+            None => self.cfg.model,
+        };
+        let options = RenderOptions {
+            model,
+            spp: stage.spp.unwrap_or(self.cfg.spp),
+            ..RenderOptions::from_scene(&scene)
+        };
+        Ok(UmbraObjective {
+            scene,
+            measured,
+            options,
+            fit_scale: self.cfg.fit_scale,
+            albedo: self.cfg.albedo,
+            two_sided: self.cfg.two_sided,
+            last_render: None,
+        })
+    }
+}
+
+impl ObjectiveFactory for Factory<'_> {
+    fn objective(
+        &mut self,
+        stage: &Stage,
+        _index: usize,
+    ) -> std::result::Result<Box<dyn MeshObjective>, String> {
+        self.build(stage)
+            .map(|o| Box::new(o) as Box<dyn MeshObjective>)
+            .map_err(|e| e.to_string())
+    }
+}
+
+/// The initial mesh of `cfg.init` for this measurement.
+pub fn initial_mesh(scene: &Scene, measured: &[f32], init: &Init) -> Result<Mesh> {
+    let depth = || {
+        depth_from_data(scene, measured).ok_or_else(|| {
+            Error::Invalid("the measurement has no signal to place the initial mesh".into())
+        })
+    };
+    Ok(match init {
+        Init::Plane => plane(scene, depth()?, 0.5, 8),
+        Init::Sphere => {
+            let r = 0.15 * scene.scan.axis_u.length().min(scene.scan.axis_v.length());
+            sphere(scene, depth()?, r, 2)
+        }
+        Init::Mesh(m) => m.clone(),
+    })
+}
+
+fn remesh(_mesh: &Mesh, _edge: f64) -> std::result::Result<Mesh, String> {
+    Err("remeshing between stages is not wired yet".into())
+}
+
+/// Runs the fit of `cfg` against `measured` (the scene's output layout) and writes the
+/// outputs into `out`.
+pub fn fit(
+    scene: &Scene,
+    measured: &[f32],
+    cfg: &FitConfig,
+    out: &Path,
+    progress: Progress,
+) -> Result<FitReport> {
+    let start = Instant::now();
+    let base = Scene {
+        objects: Vec::new(),
+        ..scene.clone()
+    };
+    if base.num_measurements() * base.film.temporal_bins as usize != measured.len() {
+        return Err(Error::Invalid(format!(
+            "the measurement has {} values; the scene's capture has {} measurements x {} bins",
+            measured.len(),
+            base.num_measurements(),
+            base.film.temporal_bins
+        )));
+    }
+    if let Some(i) = measured.iter().position(|v| !v.is_finite()) {
+        return Err(Error::Invalid(format!(
+            "the measurement has a non-finite value at flat index {i}"
+        )));
+    }
+    let initial = initial_mesh(&base, measured, &cfg.init)?;
+    let mut factory = Factory {
+        scene: &base,
+        measured,
+        cfg,
+    };
+    let dir = out.join("checkpoint");
+    let outcome = optim::fit(
+        &initial,
+        &cfg.schedule,
+        &mut factory,
+        &remesh,
+        &dir,
+        cfg.resume,
+        progress,
+    )
+    .map_err(|e| match e {
+        FitError::Interrupted { .. } => Error::Cancelled,
+        other => Error::Invalid(format!("fit: {other}")),
+    })?;
+    let mut files = Vec::new();
+    // With fitted albedo, faces the data drove dark are not surface: mesh.obj drops
+    // them, mesh_all.obj keeps everything.
+    let surface = outcome.mesh.without_dark_faces(DARK);
+    for (name, mesh) in [("mesh.obj", &surface), ("mesh_all.obj", &outcome.mesh)] {
+        let path = out.join(name);
+        write_atomic(&path, mesh.to_obj().as_bytes()).map_err(|e| Error::io(&path, e))?;
+        files.push(path);
+    }
+    files.extend(write_loss(out, &outcome.history)?);
+    // The final mesh at full resolution.
+    let full = Stage {
+        time_downsample: 1,
+        scan_downsample: 1,
+        ..cfg
+            .schedule
+            .stages
+            .last()
+            .cloned()
+            .unwrap_or_else(|| default_schedule().stages[2].clone())
+    };
+    let objective = factory.build(&full)?;
+    let (render, final_loss, scale) = objective.render(&outcome.mesh)?;
+    files.push(write_transients(out, &base, measured, &render, scale)?);
+    Ok(FitReport {
+        mesh: surface,
+        full_mesh: outcome.mesh,
+        history: outcome.history,
+        seconds: start.elapsed().as_secs_f64(),
+        final_loss,
+        scale,
+        rejected_steps: outcome.rejected_steps,
+        files,
+    })
+}
+
+fn write_loss(out: &Path, history: &[LossRecord]) -> Result<Vec<PathBuf>> {
+    let csv_path = out.join("loss.csv");
+    let mut csv = String::from("iteration,stage,cost,data_loss,smoothness,scale\n");
+    for r in history {
+        let scale = r
+            .report
+            .iter()
+            .find(|(k, _)| k == "scale")
+            .map_or(f64::NAN, |(_, v)| *v);
+        csv.push_str(&format!(
+            "{},{},{:e},{:e},{:e},{:e}\n",
+            r.iteration, r.stage, r.cost, r.data_loss, r.smoothness, scale
+        ));
+    }
+    write_atomic(&csv_path, csv.as_bytes()).map_err(|e| Error::io(&csv_path, e))?;
+    let png = out.join("loss.png");
+    let marks: Vec<f64> = history
+        .windows(2)
+        .filter(|w| w[0].stage != w[1].stage)
+        .map(|w| w[1].iteration as f64 - 0.5)
+        .collect();
+    let series = [
+        Series {
+            label: "data loss (relative L2 at the stage's resolution)",
+            points: history
+                .iter()
+                .map(|r| (r.iteration as f64, r.data_loss))
+                .collect(),
+        },
+        Series {
+            label: "total (with smoothness)",
+            points: history
+                .iter()
+                .map(|r| (r.iteration as f64, r.cost))
+                .collect(),
+        },
+    ];
+    if !history.is_empty() {
+        log_chart(
+            &png,
+            "umbra fit: loss per iteration (stages marked)",
+            "iteration",
+            "loss",
+            &series,
+            &marks,
+        )?;
+    }
+    Ok(vec![csv_path, png])
+}
+
+/// Streak images (scan x along the middle row, time) of the measurement, the scaled fit
+/// and their absolute difference, over the bins where the measurement has signal (above
+/// 1 % of its peak, with a margin), at most 140 columns.
+fn write_transients(
+    out: &Path,
+    scene: &Scene,
+    measured: &[f32],
+    render: &[f32],
+    scale: f64,
+) -> Result<PathBuf> {
+    let bins = scene.film.temporal_bins as usize;
+    let (nx, ny) = (scene.scan.nx as usize, scene.scan.ny as usize);
+    let row0 = match scene.capture {
+        CaptureType::Exhaustive => 0,
+        _ => (ny / 2) * nx,
+    };
+    let rows = &measured[row0 * bins..(row0 + nx) * bins];
+    let peak = rows.iter().cloned().fold(0.0f32, f32::max);
+    let lit: Vec<usize> = (0..bins)
+        .filter(|&b| (0..nx).any(|ix| rows[ix * bins + b] > 0.01 * peak))
+        .collect();
+    let (first, last) = match (lit.first(), lit.last()) {
+        (Some(&a), Some(&b)) => {
+            let margin = (b - a) / 10 + 2;
+            (a.saturating_sub(margin), (b + margin).min(bins - 1))
+        }
+        _ => (0, bins - 1),
+    };
+    let span = last + 1 - first;
+    let k = span.div_ceil(140).max(1);
+    let cols = span / k;
+    let streak = |data: &[f32], s: f32| -> Vec<f32> {
+        let mut img = vec![0.0f32; nx * cols];
+        for ix in 0..nx {
+            let row = &data[(row0 + ix) * bins + first..(row0 + ix + 1) * bins];
+            for c in 0..cols {
+                img[ix * cols + c] = s * row[c * k..(c + 1) * k].iter().sum::<f32>();
+            }
+        }
+        img
+    };
+    let (m, f) = (streak(measured, 1.0), streak(render, scale as f32));
+    let d: Vec<f32> = m.iter().zip(&f).map(|(a, b)| (a - b).abs()).collect();
+    let path = out.join("transients.png");
+    let opl = |b: usize| scene.film.start_opl + b as f32 * scene.film.bin_width_opl;
+    side_by_side(
+        &path,
+        &format!(
+            "middle scan row: scan x (down) vs OPL {:.2}-{:.2} m (right)",
+            opl(first),
+            opl(first + cols * k)
+        ),
+        &[
+            ("measured", cols, nx, &m),
+            ("fitted x scale", cols, nx, &f),
+            ("|difference|", cols, nx, &d),
+        ],
+    )?;
+    Ok(path)
+}

@@ -1,0 +1,147 @@
+//! PNG charts (plotters, bitmap backend, an embedded DejaVu Sans Mono so no system font
+//! library is needed): the loss curve of a fit, and measured and fitted transients side
+//! by side.
+
+use crate::error::{Error, Result};
+use crate::io::preview::inferno;
+use plotters::prelude::*;
+use plotters::style::FontStyle;
+use std::path::Path;
+use std::sync::Once;
+
+const FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSansMono.ttf");
+const FAMILY: &str = "sans-serif";
+
+fn register_font() {
+    static ONCE: Once = Once::new();
+    ONCE.call_once(|| {
+        // The font is compiled in and known to parse; a failure would only lose labels.
+        let _ = plotters::style::register_font(FAMILY, FontStyle::Normal, FONT);
+    });
+}
+
+fn err(path: &Path, e: impl std::fmt::Display) -> Error {
+    Error::Invalid(format!("{}: cannot draw the chart: {e}", path.display()))
+}
+
+/// One line of a chart: a label and its `(x, y)` points.
+pub struct Series<'a> {
+    pub label: &'a str,
+    pub points: Vec<(f64, f64)>,
+}
+
+/// A line chart with a logarithmic y axis (non-positive values are dropped), e.g. a
+/// loss curve; `marks` are x positions drawn as vertical lines (stage boundaries).
+pub fn log_chart(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[Series],
+    marks: &[f64],
+) -> Result<()> {
+    register_font();
+    let pts: Vec<&(f64, f64)> = series
+        .iter()
+        .flat_map(|s| s.points.iter())
+        .filter(|p| p.1 > 0.0 && p.1.is_finite() && p.0.is_finite())
+        .collect();
+    if pts.is_empty() {
+        return Err(err(path, "no positive finite values to plot"));
+    }
+    let (x0, x1) = pts
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
+    let (y0, y1) = pts
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+    let x1 = if x1 > x0 { x1 } else { x0 + 1.0 };
+    let (y0, y1) = (y0 / 1.5, if y1 > y0 { y1 * 1.5 } else { y0 * 2.0 });
+    let root = BitMapBackend::new(path, (900, 560)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(path, e))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, (FAMILY, 22))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(80)
+        .build_cartesian_2d(x0..x1, (y0..y1).log_scale())
+        .map_err(|e| err(path, e))?;
+    chart
+        .configure_mesh()
+        .x_desc(x_label)
+        .y_desc(y_label)
+        .label_style((FAMILY, 14))
+        .y_label_formatter(&|v| format!("{v:.1e}"))
+        .draw()
+        .map_err(|e| err(path, e))?;
+    for &m in marks {
+        chart
+            .draw_series(LineSeries::new([(m, y0), (m, y1)], BLACK.mix(0.25)))
+            .map_err(|e| err(path, e))?;
+    }
+    for (k, s) in series.iter().enumerate() {
+        let colour = Palette99::pick(k).to_rgba();
+        let pts: Vec<(f64, f64)> = s
+            .points
+            .iter()
+            .cloned()
+            .filter(|p| p.1 > 0.0 && p.1.is_finite())
+            .collect();
+        chart
+            .draw_series(LineSeries::new(pts, colour.stroke_width(2)))
+            .map_err(|e| err(path, e))?
+            .label(s.label)
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2)));
+    }
+    chart
+        .configure_series_labels()
+        .label_font((FAMILY, 14))
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| err(path, e))?;
+    root.present().map_err(|e| err(path, e))?;
+    Ok(())
+}
+
+/// Images side by side, each `(title, width, height, values row-major)`, colour-mapped
+/// with inferno against a shared maximum and stretched (nearest neighbour, each axis on
+/// its own) to panels of about 280 x 280 pixels.
+pub fn side_by_side(path: &Path, title: &str, images: &[(&str, usize, usize, &[f32])]) -> Result<()> {
+    register_font();
+    let max = images
+        .iter()
+        .flat_map(|i| i.3.iter())
+        .cloned()
+        .filter(|v| v.is_finite())
+        .fold(0.0f32, f32::max)
+        .max(f32::MIN_POSITIVE);
+    let height = images.iter().map(|i| i.2).max().unwrap_or(1).max(1);
+    let width = images.iter().map(|i| i.1).max().unwrap_or(1).max(1);
+    let (zx, zy) = ((280 / width).max(1), (280 / height).max(1));
+    let panel = (width * zx, height * zy);
+    let total_w = panel.0 * images.len() + 20 * (images.len() + 1);
+    let (w, h) = (total_w.max(300) as u32, (panel.1 + 80) as u32);
+    let root = BitMapBackend::new(path, (w, h)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(path, e))?;
+    root.draw(&Text::new(title, (20, 8), (FAMILY, 16))).map_err(|e| err(path, e))?;
+    let mut x = 20i32;
+    for (name, iw, ih, values) in images {
+        root.draw(&Text::new(*name, (x, 36), (FAMILY, 15))).map_err(|e| err(path, e))?;
+        for r in 0..*ih {
+            for c in 0..*iw {
+                let v = values[r * iw + c];
+                let [cr, cg, cb] = inferno(if v.is_finite() { (v / max).clamp(0.0, 1.0) } else { 0.0 });
+                let (px, py) = (x + (c * zx) as i32, 60 + (r * zy) as i32);
+                root.draw(&Rectangle::new(
+                    [(px, py), (px + zx as i32, py + zy as i32)],
+                    RGBColor(cr, cg, cb).filled(),
+                ))
+                .map_err(|e| err(path, e))?;
+            }
+        }
+        x += panel.0 as i32 + 20;
+    }
+    root.present().map_err(|e| err(path, e))?;
+    Ok(())
+}

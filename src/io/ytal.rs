@@ -1,0 +1,584 @@
+//! y-tal's capture files (`tal.io.NLOSCaptureData`, HDF5), read and written.
+//!
+//! A file holds one dataset per field at its root:
+//!
+//! | dataset | y-tal's meaning | Umbra |
+//! | --- | --- | --- |
+//! | `H` | float32 transient, `(T, Sx, Sy)` or `(T, Lx, Ly, Sx, Sy)` | `(sy, sx, T)` / `(ly, lx, sy, sx, T)`, converted here |
+//! | `H_format` | enum `HFormat` (int32, stored as a `(1,)` array): `T_Sx_Sy` = 1, `T_Lx_Ly_Sx_Sy` = 2 | we read those two |
+//! | `sensor_grid_xyz` | `(Sx, Sy, 3)` wall points, indexed `[x, y]` | a regular [`ScanGrid`], inferred |
+//! | `laser_grid_xyz` | `(1, 1, 3)` for one laser point, the sensor grid for confocal, `(Lx, Ly, 3)` exhaustive | capture type, laser point |
+//! | `{sensor,laser}_grid_normals`, `{sensor,laser}_grid_format` (`GridFormat`: `X_Y_3` = 2) | normals, layout | written; `N_3` grids are refused |
+//! | `sensor_xyz`, `laser_xyz` | detector and laser positions | written (the detector and laser origins) |
+//! | `delta_t`, `t_start` | bin width and start, m of OPL (float64 scalars) | `bin_width_opl`, `start_opl` |
+//! | `t_accounts_first_and_last_bounces` | HDF5 bool (enum int8 FALSE/TRUE) | the same flag |
+//! | `volume_format` | deprecated; `tal render` writes an empty (null) float64 | written the same way |
+//! | `scene_info` | YAML text | written: who made the file and the capture |
+//!
+//! y-tal marks a confocal capture by `H_format = T_Sx_Sy` with `laser_grid_xyz` equal to
+//! `sensor_grid_xyz` (its `is_confocal()` is `np.allclose` of the two), a single capture by a
+//! one-point laser grid. Its reader refuses any root dataset it does not know, so we write
+//! exactly its fields. Files are written to a temporary name and renamed into place.
+
+use super::measured::Measured;
+use crate::error::{Error, Result};
+use crate::scene::{CaptureType, ScanGrid, Scene};
+use crate::transport::Transient;
+use glam::{DVec3, Vec3};
+use hdf5::types::{TypeDescriptor, VarLenUnicode};
+use hdf5::{Dataset, Extents, H5Type};
+use ndarray::{ArrayD, IxDyn};
+use std::path::Path;
+
+/// y-tal's `HFormat` (`tal.enums`), same names and values. HDF5 converts enums by member
+/// name, so every member must be here even if we never write it.
+#[derive(H5Type, Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(i32)]
+#[allow(non_camel_case_types, clippy::upper_case_acronyms, dead_code)]
+enum HFormat {
+    UNKNOWN = 0,
+    T_Sx_Sy = 1,
+    T_Lx_Ly_Sx_Sy = 2,
+    T_Si = 3,
+    T_Li_Si = 4,
+}
+
+/// y-tal's `GridFormat`.
+#[derive(H5Type, Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(i32)]
+#[allow(non_camel_case_types, clippy::upper_case_acronyms, dead_code)]
+enum GridFormat {
+    UNKNOWN = 0,
+    N_3 = 1,
+    X_Y_3 = 2,
+}
+
+const H_FORMAT_NAMES: [&str; 5] = ["UNKNOWN", "T_Sx_Sy", "T_Lx_Ly_Sx_Sy", "T_Si", "T_Li_Si"];
+
+fn field_err(path: &Path, name: &str, e: impl std::fmt::Display) -> Error {
+    Error::field(path, name, e.to_string())
+}
+
+fn dataset(path: &Path, file: &hdf5::File, name: &str) -> Result<Option<Dataset>> {
+    if !file.link_exists(name) {
+        return Ok(None);
+    }
+    file.dataset(name)
+        .map(Some)
+        .map_err(|e| field_err(path, name, e))
+}
+
+fn is_null(ds: &Dataset) -> bool {
+    matches!(ds.space().and_then(|s| s.extents()), Ok(Extents::Null))
+}
+
+/// The one value of an enum (or plain integer) dataset; `E` lists y-tal's members.
+fn read_code<E: H5Type + Copy>(
+    path: &Path,
+    file: &hdf5::File,
+    name: &str,
+    code: fn(E) -> i64,
+) -> Result<Option<i64>> {
+    let Some(ds) = dataset(path, file, name)? else {
+        return Ok(None);
+    };
+    if is_null(&ds) {
+        return Ok(None);
+    }
+    let err = |e: hdf5::Error| field_err(path, name, e);
+    let desc = ds.dtype().and_then(|t| t.to_descriptor()).map_err(err)?;
+    let values: Vec<i64> = match desc {
+        TypeDescriptor::Integer(_) | TypeDescriptor::Unsigned(_) => {
+            ds.read_raw::<i64>().map_err(err)?
+        }
+        TypeDescriptor::Enum(_) => ds
+            .read_raw::<E>()
+            .map_err(err)?
+            .into_iter()
+            .map(code)
+            .collect(),
+        other => {
+            return Err(field_err(
+                path,
+                name,
+                format!("has type {other}, expected y-tal's enum"),
+            ))
+        }
+    };
+    match values.as_slice() {
+        [v] => Ok(Some(*v)),
+        _ => Err(field_err(
+            path,
+            name,
+            format!("holds {} values, expected one", values.len()),
+        )),
+    }
+}
+
+/// A float scalar (or one-element array); `None` if absent or empty.
+fn read_scalar(path: &Path, file: &hdf5::File, name: &str) -> Result<Option<f64>> {
+    let Some(ds) = dataset(path, file, name)? else {
+        return Ok(None);
+    };
+    if is_null(&ds) {
+        return Ok(None);
+    }
+    let v = ds.read_raw::<f64>().map_err(|e| field_err(path, name, e))?;
+    match v.as_slice() {
+        [x] if x.is_finite() => Ok(Some(*x)),
+        [x] => Err(field_err(path, name, format!("must be finite, got {x}"))),
+        _ => Err(field_err(
+            path,
+            name,
+            format!("holds {} values, expected one number", v.len()),
+        )),
+    }
+}
+
+fn read_bool(path: &Path, file: &hdf5::File, name: &str) -> Result<Option<bool>> {
+    let Some(ds) = dataset(path, file, name)? else {
+        return Ok(None);
+    };
+    if is_null(&ds) {
+        return Ok(None);
+    }
+    let err = |e: hdf5::Error| field_err(path, name, e);
+    let desc = ds.dtype().and_then(|t| t.to_descriptor()).map_err(err)?;
+    let v: Vec<bool> = match desc {
+        TypeDescriptor::Integer(_) | TypeDescriptor::Unsigned(_) => ds
+            .read_raw::<i64>()
+            .map_err(err)?
+            .iter()
+            .map(|&x| x != 0)
+            .collect(),
+        _ => ds.read_raw::<bool>().map_err(err)?,
+    };
+    match v.as_slice() {
+        [b] => Ok(Some(*b)),
+        _ => Err(field_err(
+            path,
+            name,
+            format!("holds {} values, expected one", v.len()),
+        )),
+    }
+}
+
+/// Wall points of a grid dataset: its shape without the trailing 3, and the points in
+/// C order.
+fn read_points(path: &Path, file: &hdf5::File, name: &str) -> Result<(Vec<usize>, Vec<DVec3>)> {
+    let ds = dataset(path, file, name)?.ok_or_else(|| {
+        field_err(
+            path,
+            name,
+            "missing: a y-tal capture stores its wall points here",
+        )
+    })?;
+    let shape = ds.shape();
+    if shape.last() != Some(&3) {
+        return Err(field_err(
+            path,
+            name,
+            format!("has shape {shape:?}, expected (x, y, 3)"),
+        ));
+    }
+    let v = ds.read_raw::<f64>().map_err(|e| field_err(path, name, e))?;
+    if v.iter().any(|x| !x.is_finite()) {
+        return Err(field_err(path, name, "holds a non-finite coordinate"));
+    }
+    let pts = v.chunks_exact(3).map(DVec3::from_slice).collect();
+    Ok((shape[..shape.len() - 1].to_vec(), pts))
+}
+
+/// The regular grid through `pts` (indexed `[ix * ny + iy]`, pixel-centre convention), or an
+/// error naming the dataset if the points are not evenly spaced on a parallelogram. An axis
+/// with one point gets a zero edge vector: the file does not say how wide it is.
+fn regular_grid(path: &Path, name: &str, nx: usize, ny: usize, pts: &[DVec3]) -> Result<ScanGrid> {
+    let too_big = u32::try_from(nx).is_err() || u32::try_from(ny).is_err();
+    if nx == 0 || ny == 0 || too_big || pts.len() != nx * ny {
+        return Err(field_err(
+            path,
+            name,
+            format!(
+                "a {nx} x {ny} grid of {} points is not a usable scan",
+                pts.len()
+            ),
+        ));
+    }
+    let at = |ix: usize, iy: usize| pts[ix * ny + iy];
+    let edge = |n: usize, last: DVec3| {
+        if n > 1 {
+            (last - at(0, 0)) * n as f64 / (n - 1) as f64
+        } else {
+            DVec3::ZERO
+        }
+    };
+    let axis_u = edge(nx, at(nx - 1, 0));
+    let axis_v = edge(ny, at(0, ny - 1));
+    let center = pts.iter().copied().sum::<DVec3>() / pts.len() as f64;
+    let size = axis_u.length().max(axis_v.length()).max(1.0);
+    let tol = 1e-5 * size;
+    if (nx > 1 && axis_u.length() <= tol) || (ny > 1 && axis_v.length() <= tol) {
+        return Err(field_err(
+            path,
+            name,
+            "not a regular grid: its points repeat",
+        ));
+    }
+    if nx > 1 && ny > 1 && axis_u.normalize().cross(axis_v.normalize()).length() < 1e-6 {
+        return Err(field_err(
+            path,
+            name,
+            "not a regular grid: its x and y directions are parallel",
+        ));
+    }
+    for ix in 0..nx {
+        for iy in 0..ny {
+            let s = (ix as f64 + 0.5) / nx as f64 - 0.5;
+            let t = (iy as f64 + 0.5) / ny as f64 - 0.5;
+            let d = at(ix, iy).distance(center + s * axis_u + t * axis_v);
+            if d > tol {
+                return Err(field_err(
+                    path,
+                    name,
+                    format!(
+                        "not a regular grid: point [{ix}, {iy}] = {} is {d:.3e} m off the evenly spaced grid through the corners (Umbra scans a regular rectangular grid)",
+                        at(ix, iy)
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(ScanGrid {
+        nx: nx as u32,
+        ny: ny as u32,
+        center: center.as_vec3(),
+        axis_u: axis_u.as_vec3(),
+        axis_v: axis_v.as_vec3(),
+    })
+}
+
+/// `data` (C order, `shape`) with its axes reordered: output axis `k` is input axis `perm[k]`.
+fn permute(data: &[f32], shape: &[usize], perm: &[usize]) -> (Vec<f32>, Vec<usize>) {
+    let n = shape.len();
+    let out_shape: Vec<usize> = perm.iter().map(|&a| shape[a]).collect();
+    let mut stride_of_input_axis = vec![0usize; n];
+    let mut s = 1;
+    for k in (0..n).rev() {
+        stride_of_input_axis[perm[k]] = s;
+        s *= out_shape[k];
+    }
+    let mut out = vec![0.0f32; data.len()];
+    let mut idx = vec![0usize; n];
+    let mut off = 0usize;
+    for &v in data {
+        out[off] = v;
+        for a in (0..n).rev() {
+            idx[a] += 1;
+            off += stride_of_input_axis[a];
+            if idx[a] < shape[a] {
+                break;
+            }
+            off -= stride_of_input_axis[a] * shape[a];
+            idx[a] = 0;
+        }
+    }
+    (out, out_shape)
+}
+
+/// y-tal `(T, Sx, Sy)` -> Umbra `(sy, sx, T)`; `(T, Lx, Ly, Sx, Sy)` -> `(ly, lx, sy, sx, T)`.
+const FROM_YTAL_3: [usize; 3] = [2, 1, 0];
+const FROM_YTAL_5: [usize; 5] = [2, 1, 4, 3, 0];
+/// Umbra -> y-tal.
+const TO_YTAL_3: [usize; 3] = [2, 1, 0];
+const TO_YTAL_5: [usize; 5] = [4, 1, 0, 3, 2];
+
+/// Reads a y-tal capture (see the module docs); errors name the file and the dataset.
+pub fn read_ytal(path: &Path) -> Result<Measured> {
+    if !path.is_file() {
+        return Err(Error::scene(path, "no such file"));
+    }
+    let file =
+        hdf5::File::open(path).map_err(|e| Error::scene(path, format!("not an HDF5 file: {e}")))?;
+    let h = dataset(path, &file, "H")?.ok_or_else(|| {
+        field_err(
+            path,
+            "H",
+            "missing: a y-tal capture (NLOSCaptureData) stores its transient in H",
+        )
+    })?;
+    let format = read_code::<HFormat>(path, &file, "H_format", |f| f as i64)?.ok_or_else(|| {
+        field_err(
+            path,
+            "H_format",
+            "missing (y-tal writes T_Sx_Sy = 1 or T_Lx_Ly_Sx_Sy = 2)",
+        )
+    })?;
+    let exhaustive = match format {
+        1 => false,
+        2 => true,
+        v => {
+            let name = usize::try_from(v)
+                .ok()
+                .and_then(|i| H_FORMAT_NAMES.get(i))
+                .map_or(format!("{v} is not a y-tal HFormat"), |n| {
+                    format!("{n} ({v})")
+                });
+            return Err(field_err(
+                path,
+                "H_format",
+                format!("{name}: not supported, Umbra reads T_Sx_Sy (1) and T_Lx_Ly_Sx_Sy (2)"),
+            ));
+        }
+    };
+    for grid in ["sensor_grid_format", "laser_grid_format"] {
+        let code = read_code::<GridFormat>(path, &file, grid, |f| f as i64)?;
+        if code.is_some_and(|c| c != GridFormat::X_Y_3 as i64) {
+            return Err(field_err(
+                path,
+                grid,
+                format!(
+                    "{} is not supported: Umbra reads X_Y_3 (2) grids",
+                    code.unwrap_or(0)
+                ),
+            ));
+        }
+    }
+    let shape = h.shape();
+    let (rank, layout) = if exhaustive {
+        (5, "(T, Lx, Ly, Sx, Sy)")
+    } else {
+        (3, "(T, Sx, Sy)")
+    };
+    if shape.len() != rank || shape.contains(&0) {
+        return Err(field_err(
+            path,
+            "H",
+            format!(
+                "has shape {shape:?}, but H_format {} means {layout}",
+                H_FORMAT_NAMES[format as usize]
+            ),
+        ));
+    }
+    let (sx, sy) = (shape[rank - 2], shape[rank - 1]);
+    let (sensor_shape, sensor_pts) = read_points(path, &file, "sensor_grid_xyz")?;
+    if sensor_shape != [sx, sy] {
+        return Err(field_err(
+            path,
+            "sensor_grid_xyz",
+            format!("has {sensor_shape:?} points, but H {shape:?} holds a {sx} x {sy} sensor grid"),
+        ));
+    }
+    let scan = regular_grid(path, "sensor_grid_xyz", sx, sy, &sensor_pts)?;
+    let (laser_shape, laser_pts) = read_points(path, &file, "laser_grid_xyz")?;
+    let tol = 1e-5 * (scan.axis_u.length().max(scan.axis_v.length()).max(1.0) as f64);
+    let (capture, laser_point, laser_grid) = if exhaustive {
+        let (lx, ly) = (shape[1], shape[2]);
+        if laser_shape != [lx, ly] {
+            return Err(field_err(
+                path,
+                "laser_grid_xyz",
+                format!(
+                    "has {laser_shape:?} points, but H {shape:?} holds a {lx} x {ly} laser grid"
+                ),
+            ));
+        }
+        let g = regular_grid(path, "laser_grid_xyz", lx, ly, &laser_pts)?;
+        (CaptureType::Exhaustive, None, Some(g))
+    } else if laser_pts.len() == 1 {
+        (CaptureType::Single, Some(laser_pts[0].as_vec3()), None)
+    } else if laser_shape == sensor_shape
+        && laser_pts
+            .iter()
+            .zip(&sensor_pts)
+            .all(|(a, b)| a.distance(*b) <= tol)
+    {
+        (CaptureType::Confocal, None, None)
+    } else {
+        return Err(field_err(
+            path,
+            "laser_grid_xyz",
+            format!("has {laser_shape:?} points: neither one point (single capture) nor the sensor grid (confocal)"),
+        ));
+    };
+    let data = h.read_raw::<f32>().map_err(|e| field_err(path, "H", e))?;
+    if let Some(i) = data.iter().position(|v| !v.is_finite()) {
+        return Err(field_err(
+            path,
+            "H",
+            format!("holds a non-finite value at flat index {i}"),
+        ));
+    }
+    let (data, shape) = if exhaustive {
+        permute(&data, &shape, &FROM_YTAL_5)
+    } else {
+        permute(&data, &shape, &FROM_YTAL_3)
+    };
+    let delta_t = read_scalar(path, &file, "delta_t")?;
+    if delta_t.is_some_and(|w| w <= 0.0) {
+        return Err(field_err(
+            path,
+            "delta_t",
+            format!("must be > 0, got {}", delta_t.unwrap_or(0.0)),
+        ));
+    }
+    Ok(Measured {
+        transient: Transient { data, shape },
+        capture: Some(capture),
+        scan: Some(scan),
+        laser_point,
+        laser_grid,
+        start_opl: read_scalar(path, &file, "t_start")?.map(|v| v as f32),
+        bin_width_opl: delta_t.map(|v| v as f32),
+        account_first_and_last_bounces: read_bool(
+            path,
+            &file,
+            "t_accounts_first_and_last_bounces",
+        )?,
+        source: path.to_path_buf(),
+    })
+}
+
+/// Grid points as y-tal stores them: `(nx, ny, 3)` indexed `[x, y]`.
+fn grid_array(g: &ScanGrid) -> ArrayD<f32> {
+    let (nx, ny) = (g.nx as usize, g.ny as usize);
+    let mut v = Vec::with_capacity(nx * ny * 3);
+    for ix in 0..nx {
+        for iy in 0..ny {
+            v.extend_from_slice(&g.point(iy * nx + ix).to_array());
+        }
+    }
+    ArrayD::from_shape_vec(IxDyn(&[nx, ny, 3]), v).expect("grid shape")
+}
+
+fn normals(n: Vec3, nx: usize, ny: usize) -> ArrayD<f32> {
+    let v = (0..nx * ny).flat_map(|_| n.to_array()).collect();
+    ArrayD::from_shape_vec(IxDyn(&[nx, ny, 3]), v).expect("normals shape")
+}
+
+/// A short YAML `scene_info` (y-tal parses it with `yaml.load`).
+fn scene_info(scene: &Scene) -> String {
+    let v = |p: Vec3| format!("[{}, {}, {}]", p.x, p.y, p.z);
+    let w = &scene.wall;
+    format!(
+        "generator: umbra {}\ncapture_type: {}\nrelay_wall:\n  center: {}\n  axis_u: {}\n  axis_v: {}\n  albedo: {}\n",
+        env!("CARGO_PKG_VERSION"),
+        scene.capture.name(),
+        v(w.center),
+        v(w.axis_u),
+        v(w.axis_v),
+        w.albedo
+    )
+}
+
+/// Writes `t` (rendered for `scene`) as a y-tal capture that `tal.io.read_capture` reads.
+pub fn write_ytal(path: &Path, t: &Transient, scene: &Scene) -> Result<()> {
+    let expected = scene.output_shape();
+    if t.shape != expected || t.data.len() != expected.iter().product::<usize>() {
+        return Err(Error::Invalid(format!(
+            "{}: the transient has shape {:?} ({} values), but the scene's capture has shape {expected:?}",
+            path.display(),
+            t.shape,
+            t.data.len()
+        )));
+    }
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    }
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy())
+        .unwrap_or_default();
+    let tmp = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
+    let result = write_file(&tmp, t, scene)
+        .map_err(|e| Error::Invalid(format!("{}: writing HDF5: {e}", path.display())))
+        .and_then(|()| std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e)));
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
+/// The f64 nearest the shortest decimal that reads back as `v` (0.01f32 -> 0.01, not
+/// 0.0099999998): what the user wrote in the scene.
+fn decimal(v: f32) -> f64 {
+    v.to_string().parse().unwrap_or(v as f64)
+}
+
+fn write_file(tmp: &Path, t: &Transient, scene: &Scene) -> hdf5::Result<()> {
+    let exhaustive = scene.capture == CaptureType::Exhaustive;
+    let (h, h_shape) = if exhaustive {
+        permute(&t.data, &t.shape, &TO_YTAL_5)
+    } else {
+        permute(&t.data, &t.shape, &TO_YTAL_3)
+    };
+    let h = ArrayD::from_shape_vec(IxDyn(&h_shape), h).expect("H shape");
+    let (nx, ny) = (scene.scan.nx as usize, scene.scan.ny as usize);
+    let n_w = scene.wall.normal();
+    let sensor = grid_array(&scene.scan);
+    let (laser, laser_normals) = match scene.capture {
+        CaptureType::Single => (
+            ArrayD::from_shape_vec(IxDyn(&[1, 1, 3]), scene.laser.target.to_array().to_vec())
+                .expect("laser shape"),
+            normals(n_w, 1, 1),
+        ),
+        CaptureType::Confocal | CaptureType::Exhaustive => (sensor.clone(), normals(n_w, nx, ny)),
+    };
+    let h_format = if exhaustive {
+        HFormat::T_Lx_Ly_Sx_Sy
+    } else {
+        HFormat::T_Sx_Sy
+    };
+
+    let file = hdf5::File::create(tmp)?;
+    {
+        let data = |name: &str, a: &ArrayD<f32>| -> hdf5::Result<()> {
+            file.new_dataset_builder()
+                .with_data(a.view())
+                .create(name)
+                .map(|_| ())
+        };
+        data("H", &h)?;
+        file.new_dataset_builder()
+            .with_data(&[h_format][..])
+            .create("H_format")?;
+        data(
+            "sensor_xyz",
+            &ArrayD::from_shape_vec(IxDyn(&[3]), scene.detector.origin.to_array().to_vec())
+                .expect("3"),
+        )?;
+        data("sensor_grid_xyz", &sensor)?;
+        data("sensor_grid_normals", &normals(n_w, nx, ny))?;
+        file.new_dataset_builder()
+            .with_data(&[GridFormat::X_Y_3][..])
+            .create("sensor_grid_format")?;
+        data(
+            "laser_xyz",
+            &ArrayD::from_shape_vec(IxDyn(&[3]), scene.laser.origin.to_array().to_vec())
+                .expect("3"),
+        )?;
+        data("laser_grid_xyz", &laser)?;
+        data("laser_grid_normals", &laser_normals)?;
+        file.new_dataset_builder()
+            .with_data(&[GridFormat::X_Y_3][..])
+            .create("laser_grid_format")?;
+        file.new_dataset::<f64>()
+            .shape(Extents::Null)
+            .create("volume_format")?;
+        file.new_dataset::<f64>()
+            .create("delta_t")?
+            .write_scalar(&decimal(scene.film.bin_width_opl))?;
+        file.new_dataset::<f64>()
+            .create("t_start")?
+            .write_scalar(&decimal(scene.film.start_opl))?;
+        file.new_dataset::<bool>()
+            .create("t_accounts_first_and_last_bounces")?
+            .write_scalar(&scene.account_first_and_last_bounces)?;
+        let info: VarLenUnicode = scene_info(scene)
+            .parse()
+            .map_err(|e| hdf5::Error::from(format!("scene_info: {e}")))?;
+        file.new_dataset::<VarLenUnicode>()
+            .create("scene_info")?
+            .write_scalar(&info)?;
+    }
+    file.close()
+}

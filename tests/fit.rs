@@ -1,0 +1,144 @@
+//! Fitting on small versions of the recovery cases (the full studies are in
+//! docs/FITTING.md): a fit against a multi-bounce (`path`) target moves a plane onto
+//! the letter T, and a killed-and-resumed fit ends bit-identical to an uninterrupted one.
+
+use optim::checkpoint::LossRecord;
+use optim::fit::Progress;
+use optim::{Schedule, SolverKind, Stage};
+use std::cell::RefCell;
+use std::path::PathBuf;
+use std::rc::Rc;
+use umbra::fit::metrics::chamfer;
+use umbra::fit::run::initial_mesh;
+use umbra::fit::{fit, FitConfig, Init};
+use umbra::geometry::SceneGeometry;
+use umbra::scene::default::default_scene;
+use umbra::scene::{Model, Scene};
+use umbra::transport::{RenderOptions, Renderer};
+
+fn small_scene() -> Scene {
+    let mut scene = default_scene().unwrap();
+    scene.scan.nx = 8;
+    scene.scan.ny = 8;
+    scene.film.temporal_bins = 128;
+    scene.film.bin_width_opl = 0.016;
+    scene
+}
+
+fn target(scene: &Scene) -> Vec<f32> {
+    let geom = SceneGeometry::build(scene);
+    let opts = RenderOptions {
+        model: Model::Path,
+        spp: 512,
+        ..RenderOptions::from_scene(scene)
+    };
+    Renderer::new(scene, &geom, &opts).unwrap().render(None).unwrap().data
+}
+
+fn truth(scene: &Scene) -> optim::Mesh {
+    let m = &scene.objects[0].mesh;
+    optim::Mesh::new(
+        m.positions.iter().map(|p| [p.x as f64, p.y as f64, p.z as f64]).collect(),
+        m.triangles.clone(),
+    )
+}
+
+fn stage(iters: u64, solver: SolverKind, lr: f64, time: u32, fit_albedo: bool) -> Stage {
+    Stage {
+        iters,
+        solver,
+        lr,
+        large_steps: 10.0,
+        laplacian: 0.0,
+        fit_albedo,
+        albedo_step: 10.0,
+        remesh: None,
+        time_downsample: time,
+        scan_downsample: 1,
+        model: None,
+        spp: None,
+    }
+}
+
+fn config(schedule: Schedule) -> FitConfig {
+    FitConfig {
+        schedule,
+        init: Init::Plane,
+        model: Model::Tri3,
+        spp: 8,
+        fit_scale: true,
+        two_sided: true,
+        albedo: 0.9,
+        resume: false,
+    }
+}
+
+fn out_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("umbra-fit-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+fn quiet(stop_at: Option<u64>) -> Progress {
+    Rc::new(RefCell::new(move |r: &LossRecord| stop_at.is_none_or(|s| r.iteration < s)))
+}
+
+#[test]
+fn a_plane_fits_the_letter_rendered_by_the_path_tracer() {
+    let scene = small_scene();
+    let measured = target(&scene);
+    let schedule = Schedule {
+        stages: vec![
+            stage(40, SolverKind::Adam, 0.01, 2, false),
+            stage(40, SolverKind::Adam, 0.004, 1, true),
+        ],
+        checkpoint_every: 10,
+    };
+    let cfg = config(schedule);
+    let d = out_dir("letter");
+    let report = fit(&scene, &measured, &cfg, &d, quiet(None)).unwrap();
+    let t = truth(&scene);
+    let before = chamfer(&initial_mesh(&scene, &measured, &Init::Plane).unwrap(), &t, 2000);
+    let after = chamfer(&report.mesh, &t, 2000);
+    let first = report.history[0].data_loss;
+    eprintln!(
+        "loss {first:.4} -> {:.4} (full resolution {:.4}); Chamfer {:.1} mm -> {:.1} mm (fit->truth {:.1}, truth->fit {:.1})",
+        report.history.last().unwrap().data_loss,
+        report.final_loss,
+        1e3 * before.symmetric,
+        1e3 * after.symmetric,
+        1e3 * after.fit_to_truth,
+        1e3 * after.truth_to_fit
+    );
+    assert!(report.final_loss < 0.25 * first, "loss {first} -> {}", report.final_loss);
+    assert!(after.symmetric < 0.5 * before.symmetric, "{before:?} -> {after:?}");
+    assert!(report.mesh.vertices.iter().all(|p| p.iter().all(|c| c.is_finite())));
+    for f in ["mesh.obj", "mesh_all.obj", "loss.csv", "loss.png", "transients.png"] {
+        assert!(d.join(f).is_file(), "{f} missing");
+    }
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+#[test]
+fn a_killed_fit_resumes_to_the_same_mesh() {
+    let scene = small_scene();
+    let measured = target(&scene);
+    let schedule = Schedule {
+        stages: vec![
+            stage(8, SolverKind::Adam, 0.01, 2, false),
+            stage(6, SolverKind::Lbfgs, 0.0, 1, true),
+        ],
+        checkpoint_every: 3,
+    };
+    let whole_dir = out_dir("whole");
+    let whole = fit(&scene, &measured, &config(schedule.clone()), &whole_dir, quiet(None)).unwrap();
+    let d = out_dir("killed");
+    assert!(fit(&scene, &measured, &config(schedule.clone()), &d, quiet(Some(10))).is_err());
+    let mut resume = config(schedule);
+    resume.resume = true;
+    let resumed = fit(&scene, &measured, &resume, &d, quiet(None)).unwrap();
+    assert_eq!(resumed.full_mesh, whole.full_mesh);
+    assert_eq!(resumed.history, whole.history);
+    let _ = std::fs::remove_dir_all(&d);
+    let _ = std::fs::remove_dir_all(&whole_dir);
+}

@@ -1,0 +1,440 @@
+//! y-tal's HDF5 captures (io::ytal) and measured-data reading (io::measured): the capture
+//! y-tal wrote in ../shared/data/ytal, write -> read round trips for every capture type,
+//! bad files, scene checks, and the LCT capture through `read_measured`.
+//! UMBRA_YTAL_DIR / UMBRA_LCT_DIR override the data directories.
+
+use glam::Vec3;
+use std::path::PathBuf;
+use umbra::io::measured::{read_measured, Measured};
+use umbra::io::ytal::{read_ytal, write_ytal};
+use umbra::scene::{default::default_scene, CaptureType, ScanGrid, Scene};
+use umbra::transport::Transient;
+
+fn shared_dir(var: &str, name: &str) -> PathBuf {
+    if let Ok(d) = std::env::var(var) {
+        return PathBuf::from(d);
+    }
+    let beside = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data/")
+        .join(name);
+    if beside.is_dir() {
+        return beside;
+    }
+    PathBuf::from("/work/shared/data").join(name)
+}
+
+fn lscene() -> PathBuf {
+    let p = shared_dir("UMBRA_YTAL_DIR", "ytal").join("lscene.hdf5");
+    assert!(
+        p.is_file(),
+        "y-tal data not found at {} (set UMBRA_YTAL_DIR)",
+        p.display()
+    );
+    p
+}
+
+fn tmp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("umbra-ytal-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn close(a: Vec3, b: Vec3, tol: f32) -> bool {
+    a.distance(b) <= tol
+}
+
+#[test]
+fn reads_the_capture_ytal_wrote() {
+    let path = lscene();
+    let m = read_ytal(&path).unwrap();
+    assert_eq!(m.transient.shape, vec![24, 24, 300]);
+    assert_eq!(m.capture, Some(CaptureType::Single));
+    let g = m.scan.as_ref().unwrap();
+    assert_eq!((g.nx, g.ny), (24, 24));
+    assert!(close(g.center, Vec3::ZERO, 1e-6), "{}", g.center);
+    assert!(close(g.axis_u, Vec3::X, 1e-5), "{}", g.axis_u);
+    assert!(close(g.axis_v, Vec3::Y, 1e-5), "{}", g.axis_v);
+    assert!(close(m.laser_point.unwrap(), Vec3::ZERO, 1e-6));
+    assert!(m.laser_grid.is_none());
+    assert_eq!(m.bin_width_opl, Some(0.01));
+    assert_eq!(m.start_opl, Some(1.0));
+    assert_eq!(m.account_first_and_last_bounces, Some(false));
+    assert!(
+        m.transient.data.iter().all(|v| v.is_finite()) && m.transient.data.iter().any(|&v| v > 0.0)
+    );
+
+    // Layout: Umbra (sy, sx, T) is y-tal's H (T, Sx, Sy) transposed.
+    let h: Vec<f32> = hdf5::File::open(&path)
+        .unwrap()
+        .dataset("H")
+        .unwrap()
+        .read_raw()
+        .unwrap();
+    for (ix, iy, t) in [(0, 0, 0), (3, 17, 120), (20, 5, 299), (11, 12, 150)] {
+        assert_eq!(
+            m.transient.data[(iy * 24 + ix) * 300 + t],
+            h[(t * 24 + ix) * 24 + iy]
+        );
+    }
+    // read_measured dispatches .hdf5 here.
+    assert_eq!(
+        read_measured(&path).unwrap().transient.data,
+        m.transient.data
+    );
+
+    // A scene for it, from any base: single capture, the file's grid, film and laser spot.
+    let s = m.scene_for(&default_scene().unwrap()).unwrap();
+    assert_eq!(s.capture, CaptureType::Single);
+    assert_eq!(s.output_shape(), vec![24, 24, 300]);
+    assert_eq!((s.film.start_opl, s.film.bin_width_opl), (1.0, 0.01));
+    m.check_against(&s).unwrap();
+}
+
+/// A small non-square scene (3 x 2 scan, 7 bins) of each capture type, and a transient whose
+/// every value differs.
+fn small(capture: CaptureType) -> (Scene, Transient) {
+    let mut s = default_scene().unwrap();
+    s.capture = capture;
+    s.scan = ScanGrid {
+        nx: 3,
+        ny: 2,
+        center: Vec3::new(0.1, -0.2, 0.0),
+        axis_u: Vec3::new(0.9, 0.0, 0.0),
+        axis_v: Vec3::new(0.0, 0.4, 0.0),
+    };
+    s.laser.target = Vec3::new(0.25, 0.3, 0.0);
+    s.film.temporal_bins = 7;
+    s.film.bin_width_opl = 0.003;
+    s.film.start_opl = 0.85;
+    s.account_first_and_last_bounces = capture == CaptureType::Confocal;
+    let shape = s.output_shape();
+    let n: usize = shape.iter().product();
+    let data = (0..n)
+        .map(|i| 0.5 + i as f32 * 1.0e-3 + (i as f32).sin())
+        .collect();
+    (s, Transient { data, shape })
+}
+
+#[test]
+fn write_then_read_gives_the_same_capture() {
+    let dir = tmp_dir("roundtrip");
+    for capture in [
+        CaptureType::Single,
+        CaptureType::Confocal,
+        CaptureType::Exhaustive,
+    ] {
+        let (scene, t) = small(capture);
+        let path = dir.join(format!("{}.hdf5", capture.name()));
+        write_ytal(&path, &t, &scene).unwrap();
+        let m = read_ytal(&path).unwrap();
+        assert_eq!(m.capture, Some(capture));
+        assert_eq!(m.transient.shape, t.shape);
+        assert!(
+            m.transient
+                .data
+                .iter()
+                .zip(&t.data)
+                .all(|(a, b)| a.to_bits() == b.to_bits()),
+            "{capture:?}: the transient changed"
+        );
+        let g = m.scan.as_ref().unwrap();
+        assert_eq!((g.nx, g.ny), (3, 2));
+        assert!(close(g.center, scene.scan.center, 1e-6));
+        assert!(close(g.axis_u, scene.scan.axis_u, 1e-6));
+        assert!(close(g.axis_v, scene.scan.axis_v, 1e-6));
+        assert_eq!(m.bin_width_opl, Some(0.003));
+        assert_eq!(m.start_opl, Some(0.85));
+        assert_eq!(
+            m.account_first_and_last_bounces,
+            Some(scene.account_first_and_last_bounces)
+        );
+        match capture {
+            CaptureType::Single => assert_eq!(m.laser_point, Some(scene.laser.target)),
+            CaptureType::Confocal => assert!(m.laser_point.is_none() && m.laser_grid.is_none()),
+            CaptureType::Exhaustive => {
+                assert!(close(
+                    m.laser_grid.as_ref().unwrap().center,
+                    scene.scan.center,
+                    1e-6
+                ))
+            }
+        }
+        m.check_against(&scene).unwrap();
+        let again = m.scene_for(&default_scene().unwrap()).unwrap();
+        assert_eq!(
+            (again.capture, again.output_shape()),
+            (capture, t.shape.clone())
+        );
+        // No temporary file is left beside the output.
+        let leftovers: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .filter(|e| e.file_name().to_string_lossy().ends_with(".tmp"))
+            .collect();
+        assert!(leftovers.is_empty());
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn exhaustive_h_is_t_lx_ly_sx_sy() {
+    let dir = tmp_dir("exhaustive");
+    let (scene, t) = small(CaptureType::Exhaustive);
+    let path = dir.join("e.h5");
+    umbra::io::write_capture(&path, &t, &scene).unwrap();
+    let f = hdf5::File::open(&path).unwrap();
+    let ds = f.dataset("H").unwrap();
+    assert_eq!(ds.shape(), vec![7, 3, 2, 3, 2]);
+    let h: Vec<f32> = ds.read_raw().unwrap();
+    let (nx, ny, bins) = (3, 2, 7);
+    for (lx, ly, sx, sy, b) in [(0, 0, 0, 0, 0), (2, 1, 0, 1, 3), (1, 0, 2, 1, 6)] {
+        let umbra = t.data[(((ly * nx + lx) * ny + sy) * nx + sx) * bins + b];
+        let ytal = h[(((b * nx + lx) * ny + ly) * nx + sx) * ny + sy];
+        assert_eq!(umbra, ytal);
+    }
+    let g: Vec<f32> = f.dataset("sensor_grid_xyz").unwrap().read_raw().unwrap();
+    // [x, y] indexing: element [2, 0] is scan point ix = 2, iy = 0.
+    let p = scene.scan.point(2);
+    assert_eq!(&g[(2 * ny) * 3..(2 * ny) * 3 + 3], &p.to_array());
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+fn message(r: umbra::Result<Measured>) -> String {
+    match r {
+        Ok(_) => panic!("a bad file was accepted"),
+        Err(e) => e.to_string(),
+    }
+}
+
+#[test]
+fn bad_files_name_the_file_and_the_dataset() {
+    let dir = tmp_dir("bad");
+    let (scene, t) = small(CaptureType::Confocal);
+
+    let no_h = dir.join("no_h.hdf5");
+    {
+        let f = hdf5::File::create(&no_h).unwrap();
+        f.new_dataset::<f64>()
+            .create("delta_t")
+            .unwrap()
+            .write_scalar(&0.01)
+            .unwrap();
+    }
+    let e = message(read_ytal(&no_h));
+    assert!(
+        e.contains("no_h.hdf5") && e.contains("H:") && e.contains("missing"),
+        "{e}"
+    );
+
+    let wrong_format = dir.join("wrong_format.hdf5");
+    write_ytal(&wrong_format, &t, &scene).unwrap();
+    {
+        let f = hdf5::File::open_rw(&wrong_format).unwrap();
+        f.unlink("H_format").unwrap();
+        f.new_dataset_builder()
+            .with_data(&[3i32][..])
+            .create("H_format")
+            .unwrap();
+    }
+    let e = message(read_ytal(&wrong_format));
+    assert!(
+        e.contains("wrong_format.hdf5") && e.contains("H_format") && e.contains("T_Si"),
+        "{e}"
+    );
+
+    let irregular = dir.join("irregular.hdf5");
+    write_ytal(&irregular, &t, &scene).unwrap();
+    {
+        let f = hdf5::File::open_rw(&irregular).unwrap();
+        let ds = f.dataset("sensor_grid_xyz").unwrap();
+        let mut g: Vec<f32> = ds.read_raw().unwrap();
+        g[3] += 0.05; // point [0, 1] moves 5 cm along x
+        ds.write_raw(&g).unwrap();
+    }
+    let e = message(read_ytal(&irregular));
+    assert!(
+        e.contains("irregular.hdf5") && e.contains("sensor_grid_xyz") && e.contains("regular"),
+        "{e}"
+    );
+
+    let mismatched = dir.join("mismatched.hdf5");
+    write_ytal(&mismatched, &t, &scene).unwrap();
+    {
+        let f = hdf5::File::open_rw(&mismatched).unwrap();
+        f.unlink("laser_grid_xyz").unwrap();
+        let l = ndarray::Array3::<f32>::zeros((2, 2, 3));
+        f.new_dataset_builder()
+            .with_data(&l)
+            .create("laser_grid_xyz")
+            .unwrap();
+    }
+    let e = message(read_ytal(&mismatched));
+    assert!(e.contains("laser_grid_xyz") && e.contains("neither"), "{e}");
+
+    let not_hdf5 = dir.join("text.hdf5");
+    std::fs::write(&not_hdf5, "not hdf5").unwrap();
+    let e = message(read_ytal(&not_hdf5));
+    assert!(e.contains("text.hdf5") && e.contains("HDF5"), "{e}");
+
+    let e = message(read_measured(&dir.join("capture.csv")));
+    assert!(e.contains("capture.csv") && e.contains(".hdf5"), "{e}");
+
+    // Writing a transient that does not fit the scene is an error, not a file.
+    let bad = Transient {
+        data: vec![0.0; 6],
+        shape: vec![1, 2, 3],
+    };
+    let out = dir.join("never.hdf5");
+    assert!(write_ytal(&out, &bad, &scene)
+        .unwrap_err()
+        .to_string()
+        .contains("never.hdf5"));
+    assert!(!out.exists());
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+fn mismatch(m: &Measured, scene: &Scene) -> String {
+    m.check_against(scene).unwrap_err().to_string()
+}
+
+#[test]
+fn check_against_names_what_disagrees() {
+    let m = read_ytal(&lscene()).unwrap();
+    let good = m.scene_for(&default_scene().unwrap()).unwrap();
+    m.check_against(&good).unwrap();
+
+    let mut s = good.clone();
+    s.film.bin_width_opl = 0.02;
+    let e = mismatch(&m, &s);
+    assert!(
+        e.contains("lscene.hdf5") && e.contains("delta_t") && e.contains("film.bin_width_opl"),
+        "{e}"
+    );
+
+    let mut s = good.clone();
+    s.film.start_opl = 0.9;
+    let e = mismatch(&m, &s);
+    assert!(e.contains("t_start") && e.contains("film.start_opl"), "{e}");
+
+    let mut s = good.clone();
+    s.film.temporal_bins = 512;
+    let e = mismatch(&m, &s);
+    assert!(e.contains("H:") && e.contains("temporal_bins 512"), "{e}");
+
+    let mut s = good.clone();
+    s.capture = CaptureType::Confocal;
+    let e = mismatch(&m, &s);
+    assert!(
+        e.contains("single") && e.contains("capture_type is confocal"),
+        "{e}"
+    );
+
+    let mut s = good.clone();
+    s.scan.center.x += 0.01;
+    let e = mismatch(&m, &s);
+    assert!(
+        e.contains("sensor_grid_xyz") && e.contains("scan point"),
+        "{e}"
+    );
+
+    let mut s = good.clone();
+    s.laser.target = Vec3::new(0.2, 0.0, 0.0);
+    let e = mismatch(&m, &s);
+    assert!(
+        e.contains("laser_grid_xyz") && e.contains("laser.target"),
+        "{e}"
+    );
+
+    let mut s = good.clone();
+    s.account_first_and_last_bounces = true;
+    let e = mismatch(&m, &s);
+    assert!(e.contains("t_accounts_first_and_last_bounces"), "{e}");
+}
+
+fn lct_file() -> PathBuf {
+    let p = shared_dir("UMBRA_LCT_DIR", "lct").join("data_diffuse_s.mat");
+    assert!(
+        p.is_file(),
+        "LCT data not found at {} (set UMBRA_LCT_DIR)",
+        p.display()
+    );
+    p
+}
+
+#[test]
+fn lct_capture_reads_with_its_geometry() {
+    let path = lct_file();
+    let m = read_measured(&path).unwrap();
+    let lct = umbra::io::lct::read_lct(&path).unwrap();
+    assert_eq!(m.transient.shape, vec![64, 64, 2048]);
+    assert_eq!(m.transient.data, lct.transient.data);
+    assert_eq!(m.capture, Some(CaptureType::Confocal));
+    assert_eq!(
+        (m.start_opl, m.bin_width_opl),
+        (Some(0.0), Some(umbra::io::lct::LCT_BIN_OPL))
+    );
+    assert_eq!(m.account_first_and_last_bounces, Some(false));
+    let g = m.scan.as_ref().unwrap();
+    let w = lct.width;
+    assert_eq!((g.nx, g.ny), (64, 64));
+    // rect_data(i, j) sits at (x, y) = (p_i, -p_j), p = linspace(-width, width, 64);
+    // Umbra's layout keeps sy = i, sx = j.
+    let at = |i: usize, j: usize| g.point(i * 64 + j);
+    assert!(close(at(0, 0), Vec3::new(-w, w, 0.0), 1e-5), "{}", at(0, 0));
+    assert!(
+        close(at(63, 0), Vec3::new(w, w, 0.0), 1e-5),
+        "{}",
+        at(63, 0)
+    );
+    assert!(
+        close(at(0, 63), Vec3::new(-w, -w, 0.0), 1e-5),
+        "{}",
+        at(0, 63)
+    );
+    assert!(
+        g.axis_u.cross(g.axis_v).normalize().distance(Vec3::Z) < 1e-6,
+        "mirrored grid"
+    );
+
+    let s = m.scene_for(&default_scene().unwrap()).unwrap();
+    assert_eq!(
+        (s.capture, s.output_shape()),
+        (CaptureType::Confocal, vec![64, 64, 2048])
+    );
+    assert_eq!(s.film.start_opl, 0.0);
+    m.check_against(&s).unwrap();
+}
+
+#[test]
+fn npy_is_a_bare_transient() {
+    let dir = tmp_dir("npy");
+    let (scene, t) = small(CaptureType::Confocal);
+    let path = dir.join("h.npy");
+    umbra::io::write_capture(&path, &t, &scene).unwrap();
+    let m = read_measured(&path).unwrap();
+    assert_eq!(
+        (m.transient.shape.clone(), m.capture),
+        (t.shape.clone(), None)
+    );
+    assert!(m.scan.is_none() && m.start_opl.is_none());
+    m.check_against(&scene).unwrap();
+    let s = m.scene_for(&scene).unwrap();
+    assert_eq!(s.scan, scene.scan);
+    let mut wrong = scene.clone();
+    wrong.scan.nx = 5;
+    let e = m.scene_for(&wrong).unwrap_err().to_string();
+    assert!(e.contains("h.npy") && e.contains("scan.resolution"), "{e}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn write_transient_refuses_hdf5_without_a_scene() {
+    let t = Transient {
+        data: vec![0.0; 2],
+        shape: vec![1, 1, 2],
+    };
+    let dir = tmp_dir("no-scene");
+    let e = umbra::io::write_transient(&dir.join("x.hdf5"), &t);
+    assert!(e.unwrap_err().to_string().contains("scene"));
+    std::fs::remove_dir_all(&dir).ok();
+}

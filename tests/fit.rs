@@ -32,13 +32,20 @@ fn target(scene: &Scene) -> Vec<f32> {
         spp: 512,
         ..RenderOptions::from_scene(scene)
     };
-    Renderer::new(scene, &geom, &opts).unwrap().render(None).unwrap().data
+    Renderer::new(scene, &geom, &opts)
+        .unwrap()
+        .render(None)
+        .unwrap()
+        .data
 }
 
 fn truth(scene: &Scene) -> optim::Mesh {
     let m = &scene.objects[0].mesh;
     optim::Mesh::new(
-        m.positions.iter().map(|p| [p.x as f64, p.y as f64, p.z as f64]).collect(),
+        m.positions
+            .iter()
+            .map(|p| [p.x as f64, p.y as f64, p.z as f64])
+            .collect(),
         m.triangles.clone(),
     )
 }
@@ -80,7 +87,9 @@ fn out_dir(name: &str) -> PathBuf {
 }
 
 fn quiet(stop_at: Option<u64>) -> Progress {
-    Rc::new(RefCell::new(move |r: &LossRecord| stop_at.is_none_or(|s| r.iteration < s)))
+    Rc::new(RefCell::new(move |r: &LossRecord| {
+        stop_at.is_none_or(|s| r.iteration < s)
+    }))
 }
 
 #[test]
@@ -98,7 +107,11 @@ fn a_plane_fits_the_letter_rendered_by_the_path_tracer() {
     let d = out_dir("letter");
     let report = fit(&scene, &measured, &cfg, &d, quiet(None)).unwrap();
     let t = truth(&scene);
-    let before = chamfer(&initial_mesh(&scene, &measured, &Init::Plane).unwrap(), &t, 2000);
+    let before = chamfer(
+        &initial_mesh(&scene, &measured, &Init::Plane).unwrap(),
+        &t,
+        2000,
+    );
     let after = chamfer(&report.mesh, &t, 2000);
     let first = report.history[0].data_loss;
     eprintln!(
@@ -110,10 +123,27 @@ fn a_plane_fits_the_letter_rendered_by_the_path_tracer() {
         1e3 * after.fit_to_truth,
         1e3 * after.truth_to_fit
     );
-    assert!(report.final_loss < 0.25 * first, "loss {first} -> {}", report.final_loss);
-    assert!(after.symmetric < 0.5 * before.symmetric, "{before:?} -> {after:?}");
-    assert!(report.mesh.vertices.iter().all(|p| p.iter().all(|c| c.is_finite())));
-    for f in ["mesh.obj", "mesh_all.obj", "loss.csv", "loss.png", "transients.png"] {
+    assert!(
+        report.final_loss < 0.25 * first,
+        "loss {first} -> {}",
+        report.final_loss
+    );
+    assert!(
+        after.symmetric < 0.5 * before.symmetric,
+        "{before:?} -> {after:?}"
+    );
+    assert!(report
+        .mesh
+        .vertices
+        .iter()
+        .all(|p| p.iter().all(|c| c.is_finite())));
+    for f in [
+        "mesh.obj",
+        "mesh_all.obj",
+        "loss.csv",
+        "loss.png",
+        "transients.png",
+    ] {
         assert!(d.join(f).is_file(), "{f} missing");
     }
     let _ = std::fs::remove_dir_all(&d);
@@ -131,9 +161,23 @@ fn a_killed_fit_resumes_to_the_same_mesh() {
         checkpoint_every: 3,
     };
     let whole_dir = out_dir("whole");
-    let whole = fit(&scene, &measured, &config(schedule.clone()), &whole_dir, quiet(None)).unwrap();
+    let whole = fit(
+        &scene,
+        &measured,
+        &config(schedule.clone()),
+        &whole_dir,
+        quiet(None),
+    )
+    .unwrap();
     let d = out_dir("killed");
-    assert!(fit(&scene, &measured, &config(schedule.clone()), &d, quiet(Some(10))).is_err());
+    assert!(fit(
+        &scene,
+        &measured,
+        &config(schedule.clone()),
+        &d,
+        quiet(Some(10))
+    )
+    .is_err());
     let mut resume = config(schedule);
     resume.resume = true;
     let resumed = fit(&scene, &measured, &resume, &d, quiet(None)).unwrap();

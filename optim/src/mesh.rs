@@ -55,7 +55,13 @@ impl Mesh {
         let keep: Vec<[u32; 3]> = self
             .faces
             .iter()
-            .filter(|f| f.iter().map(|&i| self.vertex_values[i as usize]).sum::<f64>() / 3.0 >= threshold * max)
+            .filter(|f| {
+                f.iter()
+                    .map(|&i| self.vertex_values[i as usize])
+                    .sum::<f64>()
+                    / 3.0
+                    >= threshold * max
+            })
             .cloned()
             .collect();
         let mut remap = vec![u32::MAX; self.vertices.len()];

@@ -174,7 +174,10 @@ impl MeshProblem {
         mesh.vertices = join_axes(&axes);
         if self.settings.fit_values {
             let k = self.value_scale();
-            mesh.vertex_values = theta[3 * n..].iter().map(|a| (k * a).clamp(0.0, 1.0)).collect();
+            mesh.vertex_values = theta[3 * n..]
+                .iter()
+                .map(|a| (k * a).clamp(0.0, 1.0))
+                .collect();
         }
         if let Some(i) = mesh
             .vertices

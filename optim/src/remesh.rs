@@ -3,35 +3,47 @@
 //! mesh can grow, shrink and keep well-shaped triangles.
 //!
 //! Each iteration, for a target edge length `L`:
-//! 1. split every edge longer than 4/3 `L` at its midpoint;
+//! 1. split every edge longer than 4/3 `L` at its midpoint, longest first (longest-edge
+//!    bisection: it does not degrade the smallest angles and stays bounded on slivers);
 //! 2. collapse edges shorter than 4/5 `L` when the collapse keeps the mesh manifold (link
-//!    condition), creates no edge longer than 4/3 `L` and turns no face normal by more than
-//!    60° (so none flips);
+//!    condition, no valence below 3), creates no edge longer than 4/3 `L` and turns no face
+//!    normal by more than 60° (so none flips); interior edges collapse to their midpoint;
 //! 3. flip edges where that brings the valences closer to 6 (4 on the boundary), except
 //!    across creases (face normals more than 60° apart) and where a face would fold;
 //! 4. tangential relaxation: each vertex moves by `smoothing` toward the area-weighted
 //!    centroid of its neighbours, within its tangent plane, and is projected back onto the
-//!    input surface (nearest point, found through a uniform grid).
+//!    input surface (nearest point through a uniform grid, skipping triangles that face
+//!    away from the vertex normal when possible, i.e. the far side of thin parts). A move
+//!    that would degenerate or flip a face is skipped.
 //!
 //! Open meshes: boundary edges are split and collapsed along the boundary, boundary vertices
-//! stay boundary vertices (a boundary vertex never merges into an interior one) and relax
-//! along the boundary, toward the midpoint of their two boundary neighbours. With
-//! `keep_boundary` they are projected onto the input's boundary polyline and its corners
-//! (where it turns by more than 35°) are never moved or removed, so the outline is kept;
-//! without it they are projected onto the surface and corners may be rounded off.
+//! stay boundary vertices (a boundary vertex never merges into an interior one, nor is an
+//! interior edge between two boundary vertices collapsed), so the number of boundary loops
+//! and the Euler characteristic are kept. With `keep_boundary`, boundary vertices relax
+//! toward the midpoint of their two boundary neighbours and are projected onto the input's
+//! boundary polyline, and its corners (where it turns by more than 35°) are never moved or
+//! removed: the outline is kept exactly. Without it, they relax along the line through
+//! their two boundary neighbours and are projected onto the surface: the outline can drift
+//! slightly and a corner vertex can be collapsed away (cutting the corner at coarse `L`).
 //!
 //! Values (`Mesh::vertex_values`) are interpolated linearly at splits and collapses, and
 //! every projected vertex takes the value interpolated (barycentrically) from the input at
-//! its new position, so a function linear in space stays exactly linear. Face winding is
-//! kept, and everything iterates by index, so the result is deterministic.
+//! its new position, so a function linear in space stays exactly linear and values stay
+//! within the input's range. Face winding is kept, and everything iterates by index (no
+//! hash maps), so the result is deterministic.
 //!
 //! Input problems: non-finite coordinates or values, out-of-range indices, a values count
 //! that matches neither 0 nor the vertex count, edges with more than two faces,
 //! inconsistently oriented neighbours and non-manifold vertices are errors. Repaired (and
 //! documented): vertices with bit-identical positions are welded (unless that alone makes
 //! the mesh non-manifold), faces repeating a vertex are dropped, repeated faces are kept
-//! once, unreferenced vertices are dropped. Zero-area faces are accepted; the operators
-//! never create new ones and they are usually removed by the collapses and flips.
+//! once, unreferenced vertices are dropped. Zero-area faces are accepted; no operator turns
+//! a non-degenerate face into a degenerate one, and collapses and flips usually remove them.
+//!
+//! Limitations: sharp creases are not detected as features (flips across them are refused
+//! but collapses and relaxation chamfer them by up to about 0.2 `L`); projection onto a
+//! very rough or self-intersecting input can leave some short edges whose collapse would
+//! fold a face.
 
 mod geom;
 mod halfedge;
@@ -135,13 +147,15 @@ pub fn remesh(mesh: &Mesh, opts: &RemeshOptions) -> Result<Mesh, RemeshError> {
     let hi2 = (4.0 / 3.0 * l).powi(2);
     let lo2 = (0.8 * l).powi(2);
     for _ in 0..opts.iterations {
-        if !(split_estimate(&he, l) <= MAX_FACES as f64) {
+        let estimate = split_estimate(&he, l);
+        if estimate.is_nan() || estimate > MAX_FACES as f64 {
             return Err(RemeshError::TooManyFaces { limit: MAX_FACES });
         }
         ops::split_long_edges(&mut he, hi2, MAX_FACES)?;
         ops::collapse_short_edges(&mut he, lo2, hi2, opts.keep_boundary);
         ops::equalize_valences(&mut he);
         relax::relax(&mut he, opts.smoothing, &reference, opts.keep_boundary);
+        he.compact()?;
     }
     Ok(he.to_mesh())
 }

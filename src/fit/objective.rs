@@ -1,6 +1,6 @@
 //! The renderer as the fit's objective: the hidden mesh being fitted replaces the scene's
 //! hidden objects, Umbra renders it, and the loss against the measurement `M` is the
-//! scale-free relative L2
+//! scale-free relative squared error (the square of the relative L2 error)
 //!
 //! `L(θ) = ‖s* H(θ) − M‖² / ‖M‖²`, with `s* = max(⟨H, M⟩ / ⟨H, H⟩, 0)`
 //!

@@ -62,7 +62,8 @@ pub struct FitReport {
     pub full_mesh: Mesh,
     pub history: Vec<LossRecord>,
     pub seconds: f64,
-    /// Relative L2 of the final mesh's render (times `scale`) at full resolution.
+    /// The loss `‖s H − M‖² / ‖M‖²` of the final mesh at full resolution (its square
+    /// root is the relative L2 error).
     pub final_loss: f64,
     pub scale: f64,
     pub rejected_steps: u64,
@@ -162,8 +163,10 @@ pub fn initial_mesh(scene: &Scene, measured: &[f32], init: &Init) -> Result<Mesh
     })
 }
 
-fn remesh(_mesh: &Mesh, _edge: f64) -> std::result::Result<Mesh, String> {
-    Err("remeshing between stages is not wired yet".into())
+/// Isotropic remeshing between stages (`optim::remesh`): splits, collapses, flips and
+/// tangential relaxation to the target edge, boundary kept, per-vertex albedo carried.
+fn remesh(mesh: &Mesh, edge: f64) -> std::result::Result<Mesh, String> {
+    optim::remesh::remesh(mesh, &optim::remesh::RemeshOptions::new(edge)).map_err(|e| e.to_string())
 }
 
 /// Runs the fit of `cfg` against `measured` (the scene's output layout) and writes the
@@ -272,7 +275,7 @@ fn write_loss(out: &Path, history: &[LossRecord]) -> Result<Vec<PathBuf>> {
         .collect();
     let series = [
         Series {
-            label: "data loss (relative L2 at the stage's resolution)",
+            label: "data loss |sH - M|^2 / |M|^2 (at the stage's resolution)",
             points: history
                 .iter()
                 .map(|r| (r.iteration as f64, r.data_loss))

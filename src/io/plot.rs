@@ -107,7 +107,11 @@ pub fn log_chart(
 /// Images side by side, each `(title, width, height, values row-major)`, colour-mapped
 /// with inferno against a shared maximum and stretched (nearest neighbour, each axis on
 /// its own) to panels of about 280 x 280 pixels.
-pub fn side_by_side(path: &Path, title: &str, images: &[(&str, usize, usize, &[f32])]) -> Result<()> {
+pub fn side_by_side(
+    path: &Path,
+    title: &str,
+    images: &[(&str, usize, usize, &[f32])],
+) -> Result<()> {
     register_font();
     let max = images
         .iter()
@@ -124,14 +128,20 @@ pub fn side_by_side(path: &Path, title: &str, images: &[(&str, usize, usize, &[f
     let (w, h) = (total_w.max(300) as u32, (panel.1 + 80) as u32);
     let root = BitMapBackend::new(path, (w, h)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(path, e))?;
-    root.draw(&Text::new(title, (20, 8), (FAMILY, 16))).map_err(|e| err(path, e))?;
+    root.draw(&Text::new(title, (20, 8), (FAMILY, 16)))
+        .map_err(|e| err(path, e))?;
     let mut x = 20i32;
     for (name, iw, ih, values) in images {
-        root.draw(&Text::new(*name, (x, 36), (FAMILY, 15))).map_err(|e| err(path, e))?;
+        root.draw(&Text::new(*name, (x, 36), (FAMILY, 15)))
+            .map_err(|e| err(path, e))?;
         for r in 0..*ih {
             for c in 0..*iw {
                 let v = values[r * iw + c];
-                let [cr, cg, cb] = inferno(if v.is_finite() { (v / max).clamp(0.0, 1.0) } else { 0.0 });
+                let [cr, cg, cb] = inferno(if v.is_finite() {
+                    (v / max).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                });
                 let (px, py) = (x + (c * zx) as i32, 60 + (r * zy) as i32);
                 root.draw(&Rectangle::new(
                     [(px, py), (px + zx as i32, py + zy as i32)],

@@ -199,7 +199,7 @@ fn pieces(data: &[f32], bins: usize) -> Vec<[f32; 2]> {
 #[inline(always)]
 fn int_below_2_23(x: f32) -> i32 {
     const TWO_23: f32 = 8_388_608.0;
-    ((x + TWO_23).to_bits() - TWO_23.to_bits()) as i32
+    (x + TWO_23).to_bits().wrapping_sub(TWO_23.to_bits()) as i32
 }
 
 /// `acc[i] += ws[i] · (v + t d)` with `[v, d] = p[ix[i]]`, `t = ts[i]` (`ws` ignored

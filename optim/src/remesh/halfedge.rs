@@ -52,8 +52,16 @@ impl HeMesh {
             let (u, v) = directed(c);
             (u.min(v), u.max(v))
         };
-        let mut order: Vec<usize> = (0..3 * nf).collect();
-        order.sort_unstable_by_key(|&c| (key(c), c));
+        // Corners sorted by (undirected edge, corner index), packed in one u128 each.
+        let mut packed: Vec<u128> = (0..3 * nf)
+            .map(|c| {
+                let (a, b) = key(c);
+                (u128::from(a) << 96) | (u128::from(b) << 64) | c as u128
+            })
+            .collect();
+        packed.sort_unstable();
+        let order: Vec<usize> = packed.iter().map(|&x| x as u64 as usize).collect();
+        drop(packed);
 
         let mut to = Vec::with_capacity(6 * nf);
         let mut face = Vec::with_capacity(6 * nf);
@@ -310,14 +318,33 @@ impl HeMesh {
         self.live_faces -= 1;
     }
 
+    /// Rebuilds the structure without its deleted elements (same vertex and face order).
+    pub fn compact(&mut self) -> Result<(), RemeshError> {
+        let (mesh, map) = self.compacted();
+        let mut corner = vec![false; mesh.vertices.len()];
+        for (v, &w) in map.iter().enumerate() {
+            if w != NONE {
+                corner[ix(w)] = self.corner[v];
+            }
+        }
+        *self = HeMesh::build(mesh.vertices, mesh.vertex_values, &mesh.faces)?;
+        self.corner = corner;
+        Ok(())
+    }
+
     /// Compacts the live elements into a [`Mesh`] (vertices and faces in index order).
     pub fn to_mesh(&self) -> Mesh {
+        self.compacted().0
+    }
+
+    /// The compacted mesh and the new index of each vertex (`NONE`: deleted).
+    fn compacted(&self) -> (Mesh, Vec<u32>) {
         let mut map = vec![NONE; self.pos.len()];
         let mut vertices = Vec::new();
         let mut values = Vec::new();
-        for v in 0..self.pos.len() {
+        for (v, slot) in map.iter_mut().enumerate() {
             if self.vertex_alive(v) {
-                map[v] = vertices.len() as u32;
+                *slot = vertices.len() as u32;
                 vertices.push(self.pos[v]);
                 if !self.val.is_empty() {
                     values.push(self.val[v]);
@@ -328,10 +355,11 @@ impl HeMesh {
             .filter(|&f| self.fhe[ix(f)] != NONE)
             .map(|f| self.face_verts(f).map(|v| map[ix(v)]))
             .collect();
-        Mesh {
+        let mesh = Mesh {
             vertices,
             faces,
             vertex_values: values,
-        }
+        };
+        (mesh, map)
     }
 }

@@ -280,17 +280,18 @@ pub(super) fn collapse_short_edges(
 ) -> usize {
     let mut s = Scratch::default();
     let mut count = 0;
-    // After the first sweep, only edges at vertices near a collapse are looked at again.
-    let mut dirty = vec![true; m.pos.len()];
+    // The first sweep looks at every edge, later ones only at the edges around vertices
+    // whose neighbourhood a collapse changed (in edge order).
+    let mut candidate = vec![true; m.n_edges()];
+    let mut touched = Vec::new();
     for _ in 0..MAX_PASSES {
-        let mut next_dirty = vec![false; m.pos.len()];
-        let mut pass = 0;
-        for e in 0..m.n_edges() {
+        touched.clear();
+        // Collapses add no edges, so the candidate flags cover every edge index.
+        for e in (0..m.n_edges()).filter(|&e| candidate[e]) {
             if !m.edge_alive(e) {
                 continue;
             }
-            let (x, y) = (m.to[2 * e], m.to[2 * e + 1]);
-            if !(dirty[ix(x)] || dirty[ix(y)]) || dist2(m.p(x), m.p(y)) >= lo2 {
+            if dist2(m.p(m.to[2 * e]), m.p(m.to[2 * e + 1])) >= lo2 {
                 continue;
             }
             for h in [2 * e as u32, 2 * e as u32 + 1] {
@@ -302,21 +303,29 @@ pub(super) fn collapse_short_edges(
                 };
                 if collapse_ok(m, h, p, hi2, keep_boundary, &mut s) {
                     collapse(m, h, p, value, &mut s);
-                    next_dirty[ix(b)] = true;
-                    m.outgoing(b, &mut s.ring);
-                    for &g in &s.ring {
-                        next_dirty[ix(m.to[ix(g)])] = true;
-                    }
-                    pass += 1;
+                    count += 1;
+                    touched.push(b);
                     break;
                 }
             }
         }
-        count += pass;
-        if pass == 0 {
+        if touched.is_empty() {
             break;
         }
-        dirty = next_dirty;
+        // Edges of the survivors and of their neighbours.
+        candidate.fill(false);
+        for &b in &touched {
+            if !m.vertex_alive(ix(b)) {
+                continue;
+            }
+            m.outgoing(b, &mut s.ring_a);
+            for &h in &s.ring_a {
+                m.outgoing(m.to[ix(h)], &mut s.ring_b);
+                s.ring_b
+                    .iter()
+                    .for_each(|&g| candidate[(g / 2) as usize] = true);
+            }
+        }
     }
     count
 }

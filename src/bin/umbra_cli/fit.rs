@@ -49,7 +49,7 @@ pub struct FitArgs {
     #[arg(long)]
     pub known_scale: bool,
     /// Samples per measurement of the demonstration target (no `--measured`).
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = 4096)]
     pub target_spp: u32,
     /// Worker threads (default: all cores).
     #[arg(long)]
@@ -63,7 +63,8 @@ fn load_schedule(args: &FitArgs) -> Result<optim::Schedule> {
     let mut schedule = match &args.config {
         Some(path) => {
             let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-            toml::from_str(&text).map_err(|e| Error::scene(path, format!("not a fit schedule: {e}")))?
+            toml::from_str(&text)
+                .map_err(|e| Error::scene(path, format!("not a fit schedule: {e}")))?
         }
         None => default_schedule(),
     };
@@ -83,11 +84,19 @@ fn to_mesh(scene: &Scene) -> Result<optim::Mesh> {
     let mut m = optim::Mesh::default();
     for o in &scene.objects {
         let base = m.vertices.len() as u32;
-        m.vertices.extend(o.mesh.positions.iter().map(|p| [p.x as f64, p.y as f64, p.z as f64]));
-        m.faces.extend(o.mesh.triangles.iter().map(|t| t.map(|i| i + base)));
+        m.vertices.extend(
+            o.mesh
+                .positions
+                .iter()
+                .map(|p| [p.x as f64, p.y as f64, p.z as f64]),
+        );
+        m.faces
+            .extend(o.mesh.triangles.iter().map(|t| t.map(|i| i + base)));
     }
     if m.faces.is_empty() {
-        return Err(Error::Invalid("--init scene: the scene has no hidden mesh".into()));
+        return Err(Error::Invalid(
+            "--init scene: the scene has no hidden mesh".into(),
+        ));
     }
     Ok(m)
 }
@@ -109,7 +118,12 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
     let schedule = load_schedule(&args)?;
     let model = Model::parse(&args.model)
         .filter(|m| *m != Model::Auto)
-        .ok_or_else(|| Error::Invalid(format!("--model: '{}' is not one of tri3, mc3, path", args.model)))?;
+        .ok_or_else(|| {
+            Error::Invalid(format!(
+                "--model: '{}' is not one of tri3, mc3, path",
+                args.model
+            ))
+        })?;
     std::fs::create_dir_all(&args.output).map_err(|e| Error::io(&args.output, e))?;
     if let Some(t) = args.threads {
         // The fit drives the renderer from this thread (its progress callback is not
@@ -163,8 +177,10 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
     } else {
         let b = ProgressBar::new(total);
         b.set_style(
-            ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} it  {msg}")
-                .expect("template"),
+            ProgressStyle::with_template(
+                "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} it  {msg}",
+            )
+            .expect("template"),
         );
         b
     };
@@ -178,11 +194,12 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         });
     }
     let (b, c) = (bar.clone(), cancel.clone());
-    let progress: optim::fit::Progress = Rc::new(RefCell::new(move |r: &optim::checkpoint::LossRecord| {
-        b.set_position(r.iteration);
-        b.set_message(format!("stage {} loss {:.4e}", r.stage, r.data_loss));
-        !c.load(Ordering::Relaxed)
-    }));
+    let progress: optim::fit::Progress =
+        Rc::new(RefCell::new(move |r: &optim::checkpoint::LossRecord| {
+            b.set_position(r.iteration);
+            b.set_message(format!("stage {} loss {:.4e}", r.stage, r.data_loss));
+            !c.load(Ordering::Relaxed)
+        }));
     let report = umbra::fit::fit(&scene, &measured, &cfg, &args.output, progress);
     bar.finish_and_clear();
     let report = match report {
@@ -196,10 +213,11 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         r => r?,
     };
     println!(
-        "umbra fit: {} iterations in {:.1} s, final relative L2 {:.4e} (scale {:.4}), {} vertices / {} faces{} -> {}",
+        "umbra fit: {} iterations in {:.1} s (this run), final loss {:.4e} (relative L2 {:.3}, scale {:.4}), {} vertices / {} faces{} -> {}",
         report.history.len(),
         report.seconds,
         report.final_loss,
+        report.final_loss.sqrt(),
         report.scale,
         report.mesh.vertices.len(),
         report.mesh.faces.len(),

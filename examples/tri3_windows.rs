@@ -21,8 +21,12 @@ fn main() {
         for block in &mesh.blocks {
             block.pulses::<true>(&frame, &mut pulses);
             let [t0, _, t2] = pulses.lanes.t();
-            let first = (0..LANES).map(|j| t0[j].floor()).fold(f32::INFINITY, f32::min);
-            let last = (0..LANES).map(|j| t2[j].floor()).fold(f32::NEG_INFINITY, f32::max);
+            let first = (0..LANES)
+                .map(|j| t0[j].floor())
+                .fold(f32::INFINITY, f32::min);
+            let last = (0..LANES)
+                .map(|j| t2[j].floor())
+                .fold(f32::NEG_INFINITY, f32::max);
             let span = (0..LANES).map(|j| (t2[j].floor() - t0[j].floor()) as u64 + 1);
             window += (last - first) as u64 + 1;
             longest += span.max().unwrap_or(0);

@@ -60,6 +60,7 @@ fn stage(iters: u64, solver: SolverKind, lr: f64, time: u32, fit_albedo: bool) -
         fit_albedo,
         albedo_step: 10.0,
         remesh: None,
+        remesh_factor: None,
         time_downsample: time,
         scan_downsample: 1,
         model: None,

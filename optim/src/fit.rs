@@ -68,6 +68,10 @@ pub struct Stage {
     /// Remesh to this target edge length (m) before the stage.
     #[serde(default)]
     pub remesh: Option<f64>,
+    /// Remesh to this fraction of the mesh's mean edge length before the stage (used
+    /// when `remesh` is not given).
+    #[serde(default)]
+    pub remesh_factor: Option<f64>,
     /// Sum this many time bins of the measurement (and the render) into one.
     #[serde(default = "one")]
     pub time_downsample: u32,
@@ -187,6 +191,15 @@ impl Observe<State> for FitObserver {
     }
 }
 
+/// The target edge length a stage remeshes `mesh` to, if it remeshes.
+fn remesh_edge(stage: &Stage, mesh: &Mesh) -> Option<f64> {
+    stage.remesh.or_else(|| {
+        stage
+            .remesh_factor
+            .map(|f| f * crate::laplacian::mean_edge(mesh))
+    })
+}
+
 /// Runs `schedule` from `initial` (or, with `resume`, from the checkpoints in `dir`).
 pub fn fit(
     initial: &Mesh,
@@ -298,7 +311,11 @@ pub fn fit(
             theta.ok_or_else(|| stage_err("the optimiser returned no parameters".into()))?;
         let mesh = problem.decode(&theta).map_err(stage_err)?;
         let next = index + 1;
-        let mesh = match schedule.stages.get(next).and_then(|s| s.remesh) {
+        let mesh = match schedule
+            .stages
+            .get(next)
+            .and_then(|s| remesh_edge(s, &mesh))
+        {
             Some(edge) => remesher(&mesh, edge).map_err(|message| FitError::Stage {
                 stage: next,
                 message,

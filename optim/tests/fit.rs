@@ -97,6 +97,7 @@ fn stage(iters: u64, solver: SolverKind, lr: f64) -> Stage {
         fit_albedo: false,
         albedo_step: 10.0,
         remesh: None,
+        remesh_factor: None,
         time_downsample: 1,
         scan_downsample: 1,
         model: None,

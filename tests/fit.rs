@@ -187,3 +187,62 @@ fn a_killed_fit_resumes_to_the_same_mesh() {
     let _ = std::fs::remove_dir_all(&d);
     let _ = std::fs::remove_dir_all(&whole_dir);
 }
+
+/// The CLI end to end on the default scene with a tiny schedule: outputs written, a
+/// second run refuses to overwrite the checkpoint, `--resume` of the finished fit
+/// rewrites the outputs, and a missing measurement is an error naming the file.
+#[test]
+fn cli_fit_runs_resumes_and_reports_bad_input() {
+    let exe = env!("CARGO_BIN_EXE_umbra");
+    let d = out_dir("cli");
+    std::fs::create_dir_all(&d).unwrap();
+    let config = d.join("schedule.toml");
+    std::fs::write(
+        &config,
+        "checkpoint_every = 2\n[[stage]]\niters = 3\nlr = 0.01\nlarge_steps = 10.0\ntime_downsample = 8\nscan_downsample = 4\n",
+    )
+    .unwrap();
+    let out = d.join("out");
+    let run = |extra: &[&str]| {
+        std::process::Command::new(exe)
+            .args(["fit", "-q", "--target-spp", "16", "--config"])
+            .arg(&config)
+            .arg("-o")
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let first = run(&[]);
+    let stdout = String::from_utf8_lossy(&first.stdout);
+    assert!(
+        first.status.success(),
+        "{}",
+        String::from_utf8_lossy(&first.stderr)
+    );
+    assert!(stdout.contains("Chamfer distance"), "{stdout}");
+    for f in [
+        "mesh.obj",
+        "loss.png",
+        "transients.png",
+        "target.npy",
+        "checkpoint/stage.bin",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let again = run(&[]);
+    assert!(!again.status.success());
+    assert!(String::from_utf8_lossy(&again.stderr).contains("--resume"));
+    std::fs::remove_file(out.join("mesh.obj")).unwrap();
+    let resumed = run(&["--resume"]);
+    assert!(
+        resumed.status.success(),
+        "{}",
+        String::from_utf8_lossy(&resumed.stderr)
+    );
+    assert!(out.join("mesh.obj").is_file());
+    let bad = run(&["--measured", "/nonexistent/capture.npy"]);
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("/nonexistent/capture.npy"));
+    let _ = std::fs::remove_dir_all(&d);
+}

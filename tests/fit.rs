@@ -78,6 +78,7 @@ fn config(schedule: Schedule) -> FitConfig {
         two_sided: true,
         albedo: 0.9,
         resume: false,
+        ignore_before_opl: None,
     }
 }
 

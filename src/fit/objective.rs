@@ -102,13 +102,31 @@ pub struct UmbraObjective {
     pub two_sided: bool,
     /// The last render (the stage's resolution), for plots.
     pub last_render: Option<Vec<f32>>,
+    /// Bins before this one are left out of the loss (zeroed in render and
+    /// measurement): e.g. a capture's residual direct light.
+    pub first_bin: usize,
+}
+
+/// Zeroes bins `..first` of every `bins`-long row.
+pub fn zero_leading_bins(data: &mut [f32], bins: usize, first: usize) {
+    if first == 0 || bins == 0 {
+        return;
+    }
+    for row in data.chunks_mut(bins) {
+        row[..first.min(bins)].fill(0.0);
+    }
 }
 
 impl UmbraObjective {
     /// Renders `mesh` and returns `(render, δH, loss, s*)` without the gradient.
     pub fn render(&self, mesh: &Mesh) -> crate::Result<(Vec<f32>, f64, f64)> {
         let (scene, geom, opts) = self.setup(mesh);
-        let h = Renderer::new(&scene, &geom, &opts)?.render(None)?;
+        let mut h = Renderer::new(&scene, &geom, &opts)?.render(None)?;
+        zero_leading_bins(
+            &mut h.data,
+            self.scene.film.temporal_bins as usize,
+            self.first_bin,
+        );
         let (loss, _, s) = scaled_l2(&h.data, &self.measured, self.fit_scale);
         Ok((h.data, loss, s))
     }
@@ -131,9 +149,14 @@ impl UmbraObjective {
 impl MeshObjective for UmbraObjective {
     fn evaluate(&mut self, mesh: &Mesh) -> Result<Evaluation, String> {
         let (scene, geom, opts) = self.setup(mesh);
-        let h = Renderer::new(&scene, &geom, &opts)
+        let mut h = Renderer::new(&scene, &geom, &opts)
             .and_then(|r| r.render(None))
             .map_err(|e| e.to_string())?;
+        zero_leading_bins(
+            &mut h.data,
+            self.scene.film.temporal_bins as usize,
+            self.first_bin,
+        );
         let (loss, adjoint, s) = scaled_l2(&h.data, &self.measured, self.fit_scale);
         let g =
             adjoint::gradient(&scene, &geom, &opts, &adjoint, None).map_err(|e| e.to_string())?;

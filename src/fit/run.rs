@@ -10,7 +10,7 @@
 //! - `checkpoint/`: the resumable state (see `optim::fit`).
 
 use super::init::{depth_from_data, plane, sphere};
-use super::objective::UmbraObjective;
+use super::objective::{zero_leading_bins, UmbraObjective};
 use super::resolution::at_resolution;
 use crate::error::{Error, Result};
 use crate::io::plot::{log_chart, side_by_side, Series};
@@ -53,6 +53,9 @@ pub struct FitConfig {
     /// Albedo of the fitted surface (absorbed by the scale when that is fitted).
     pub albedo: f32,
     pub resume: bool,
+    /// Leave OPLs below this (m) out of the fit (residual direct light in real captures;
+    /// the LCT code zeroes its first 600 bins, 0.72 m).
+    pub ignore_before_opl: Option<f32>,
 }
 
 /// What a fit produced.
@@ -128,7 +131,15 @@ impl Factory<'_> {
             spp: stage.spp.unwrap_or(self.cfg.spp),
             ..RenderOptions::from_scene(&scene)
         };
+        let first_bin = self.cfg.ignore_before_opl.map_or(0, |opl| {
+            ((opl - scene.film.start_opl) / scene.film.bin_width_opl)
+                .ceil()
+                .max(0.0) as usize
+        });
+        let mut measured = measured;
+        zero_leading_bins(&mut measured, scene.film.temporal_bins as usize, first_bin);
         Ok(UmbraObjective {
+            first_bin,
             scene,
             measured,
             options,
@@ -234,6 +245,14 @@ pub fn fit(
             "the measurement has a non-finite value at flat index {i}"
         )));
     }
+    let mut measured = measured.to_vec();
+    if let Some(opl) = cfg.ignore_before_opl {
+        let first = ((opl - base.film.start_opl) / base.film.bin_width_opl)
+            .ceil()
+            .max(0.0) as usize;
+        zero_leading_bins(&mut measured, base.film.temporal_bins as usize, first);
+    }
+    let measured = &measured[..];
     let last_stage = cfg
         .schedule
         .stages

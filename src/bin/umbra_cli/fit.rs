@@ -52,6 +52,10 @@ pub struct FitArgs {
     /// Samples per measurement of the demonstration target (no `--measured`).
     #[arg(long, default_value_t = 4096)]
     pub target_spp: u32,
+    /// Leave OPLs below this (m) out of the fit: residual direct light in real captures
+    /// (default for LCT `.mat` captures: 0.72 m, the original code's first 600 bins).
+    #[arg(long)]
+    pub ignore_before: Option<f32>,
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -152,6 +156,11 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
             (scene, data, Some(truth))
         }
     };
+    let lct_default = args
+        .measured
+        .as_ref()
+        .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("mat")))
+        .map(|_| 600.0 * umbra::io::lct::LCT_BIN_OPL);
     let init = match args.init.as_str() {
         "plane" => Init::Plane,
         "sphere" => Init::Sphere,
@@ -172,6 +181,7 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         two_sided: true,
         albedo: scene.objects.first().map_or(0.8, |o| o.albedo),
         resume: args.resume,
+        ignore_before_opl: args.ignore_before.or(lct_default),
     };
     let total: u64 = cfg.schedule.stages.iter().map(|s| s.iters).sum();
     let bar = if args.quiet {

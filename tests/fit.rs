@@ -40,14 +40,7 @@ fn target(scene: &Scene) -> Vec<f32> {
 }
 
 fn truth(scene: &Scene) -> optim::Mesh {
-    let m = &scene.objects[0].mesh;
-    optim::Mesh::new(
-        m.positions
-            .iter()
-            .map(|p| [p.x as f64, p.y as f64, p.z as f64])
-            .collect(),
-        m.triangles.clone(),
-    )
+    umbra::fit::fit_mesh(&scene.objects[0].mesh)
 }
 
 fn stage(iters: u64, solver: SolverKind, lr: f64, time: u32, fit_albedo: bool) -> Stage {

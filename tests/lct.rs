@@ -1,18 +1,13 @@
 //! Reading the Stanford LCT captures in ../shared/data/lct (the machine's shared data;
 //! UMBRA_LCT_DIR overrides the directory).
 
+mod common;
+
 use std::path::PathBuf;
 use umbra::io::lct::{read_lct, LCT_BIN_OPL};
 
 fn data_dir() -> PathBuf {
-    if let Ok(d) = std::env::var("UMBRA_LCT_DIR") {
-        return PathBuf::from(d);
-    }
-    let beside = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/lct");
-    if beside.is_dir() {
-        return beside;
-    }
-    PathBuf::from("/work/shared/data/lct")
+    common::shared_dir("UMBRA_LCT_DIR", "lct")
 }
 
 #[test]

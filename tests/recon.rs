@@ -258,14 +258,7 @@ fn default_grid_covers_the_scan_and_the_films_depths() {
 }
 
 fn data_dir() -> PathBuf {
-    if let Ok(d) = std::env::var("UMBRA_LCT_DIR") {
-        return PathBuf::from(d);
-    }
-    let beside = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/lct");
-    if beside.is_dir() {
-        return beside;
-    }
-    PathBuf::from("/work/shared/data/lct")
+    common::shared_dir("UMBRA_LCT_DIR", "lct")
 }
 
 /// The diffuse letter S: FBP of the real capture, 8x coarser time (9.6 mm of OPL per

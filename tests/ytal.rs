@@ -3,25 +3,15 @@
 //! bad files, scene checks, and the LCT capture through `read_measured`.
 //! UMBRA_YTAL_DIR / UMBRA_LCT_DIR override the data directories.
 
+mod common;
+use common::shared_dir;
+
 use glam::Vec3;
 use std::path::PathBuf;
 use umbra::io::measured::{read_measured, Measured};
 use umbra::io::ytal::{read_ytal, write_ytal};
 use umbra::scene::{default::default_scene, CaptureType, ScanGrid, Scene};
 use umbra::transport::Transient;
-
-fn shared_dir(var: &str, name: &str) -> PathBuf {
-    if let Ok(d) = std::env::var(var) {
-        return PathBuf::from(d);
-    }
-    let beside = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data/")
-        .join(name);
-    if beside.is_dir() {
-        return beside;
-    }
-    PathBuf::from("/work/shared/data").join(name)
-}
 
 fn lscene() -> PathBuf {
     let p = shared_dir("UMBRA_YTAL_DIR", "ytal").join("lscene.hdf5");

@@ -56,6 +56,7 @@ mod stats;
 use serde::{Deserialize, Serialize};
 
 use crate::mesh::Mesh;
+pub use geom::closest_on_triangle;
 pub use stats::{boundary_loops, edge_length_stats, is_manifold};
 
 /// The remesher refuses to produce more faces than this (about 80 bytes of working memory

@@ -77,14 +77,7 @@ pub fn plane(scene: &Scene, depth: f32, size: f32, n: usize) -> Mesh {
 /// An icosphere of `radius` centred `depth + radius` in front of the scan centre.
 pub fn sphere(scene: &Scene, depth: f32, radius: f32, level: u32) -> Mesh {
     let (c, normal, _, _) = scan_frame(scene);
-    let m = icosphere(c + (depth + radius) * normal, radius, level);
-    Mesh::new(
-        m.positions
-            .iter()
-            .map(|p| [p.x as f64, p.y as f64, p.z as f64])
-            .collect(),
-        m.triangles,
-    )
+    super::fit_mesh(&icosphere(c + (depth + radius) * normal, radius, level))
 }
 
 #[cfg(test)]

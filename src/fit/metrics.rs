@@ -61,40 +61,11 @@ pub fn sample_surface(m: &Mesh, n: usize) -> Vec<DVec3> {
     points
 }
 
-/// Distance from `p` to the triangle `[a, b, c]` (the closest-point regions of Ericson,
-/// Real-Time Collision Detection §5.1.5, written out here).
+/// Distance from `p` to the triangle `[a, b, c]` (the remesher's closest-point query).
 pub fn point_triangle_distance(p: DVec3, [a, b, c]: [DVec3; 3]) -> f64 {
-    let (ab, ac, ap) = (b - a, c - a, p - a);
-    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return ap.length();
-    }
-    let bp = p - b;
-    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
-    if d3 >= 0.0 && d4 <= d3 {
-        return bp.length();
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        return (p - (a + d1 / (d1 - d3) * ab)).length();
-    }
-    let cp = p - c;
-    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
-    if d6 >= 0.0 && d5 <= d6 {
-        return cp.length();
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        return (p - (a + d2 / (d2 - d6) * ac)).length();
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-        return (p - (b + w * (c - b))).length();
-    }
-    let denom = 1.0 / (va + vb + vc);
-    let (v, w) = (vb * denom, vc * denom);
-    (p - (a + v * ab + w * ac)).length()
+    let (q, _) =
+        optim::remesh::closest_on_triangle(p.to_array(), a.to_array(), b.to_array(), c.to_array());
+    p.distance(DVec3::from_array(q))
 }
 
 fn distances(points: &[DVec3], m: &Mesh) -> Vec<f64> {

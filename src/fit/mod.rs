@@ -15,4 +15,23 @@ pub mod resolution;
 pub mod run;
 
 pub use objective::{scaled_l2, UmbraObjective};
+
+use crate::geometry::mesh::TriMesh;
+
+/// A renderer mesh as the fit's `f64` mesh (positions and triangles; per-vertex albedo,
+/// if any, as vertex values).
+pub fn fit_mesh(m: &TriMesh) -> optim::Mesh {
+    optim::Mesh {
+        vertices: m
+            .positions
+            .iter()
+            .map(|p| [p.x as f64, p.y as f64, p.z as f64])
+            .collect(),
+        faces: m.triangles.clone(),
+        vertex_values: m
+            .vertex_albedo
+            .as_ref()
+            .map_or(Vec::new(), |a| a.iter().map(|&v| v as f64).collect()),
+    }
+}
 pub use run::{default_schedule, fit, initial_mesh, FitConfig, FitReport, Init};

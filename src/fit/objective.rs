@@ -100,8 +100,6 @@ pub struct UmbraObjective {
     /// Albedo of the fitted object where it has no per-vertex albedo.
     pub albedo: f32,
     pub two_sided: bool,
-    /// The last render (the stage's resolution), for plots.
-    pub last_render: Option<Vec<f32>>,
     /// Bins before this one are left out of the loss (zeroed in render and
     /// measurement): e.g. a capture's residual direct light.
     pub first_bin: usize,
@@ -117,21 +115,27 @@ pub fn zero_leading_bins(data: &mut [f32], bins: usize, first: usize) {
     }
 }
 
+/// One forward evaluation: what the adjoint pass needs besides the render.
+struct Forward {
+    scene: Scene,
+    geom: SceneGeometry,
+    opts: RenderOptions,
+    render: Vec<f32>,
+    loss: f64,
+    adjoint: Vec<f32>,
+    scale: f64,
+}
+
 impl UmbraObjective {
-    /// Renders `mesh` and returns `(render, δH, loss, s*)` without the gradient.
+    /// Renders `mesh` and returns `(render, loss, s*)` without the gradient.
     pub fn render(&self, mesh: &Mesh) -> crate::Result<(Vec<f32>, f64, f64)> {
-        let (scene, geom, opts) = self.setup(mesh);
-        let mut h = Renderer::new(&scene, &geom, &opts)?.render(None)?;
-        zero_leading_bins(
-            &mut h.data,
-            self.scene.film.temporal_bins as usize,
-            self.first_bin,
-        );
-        let (loss, _, s) = scaled_l2(&h.data, &self.measured, self.fit_scale);
-        Ok((h.data, loss, s))
+        let f = self.forward(mesh)?;
+        Ok((f.render, f.loss, f.scale))
     }
 
-    fn setup(&self, mesh: &Mesh) -> (Scene, SceneGeometry, RenderOptions) {
+    /// The scene with `mesh` as its hidden object, its render (leading bins left out)
+    /// and the loss with its adjoint.
+    fn forward(&self, mesh: &Mesh) -> crate::Result<Forward> {
         let mut scene = self.scene.clone();
         scene.objects = vec![hidden_object(mesh, self.albedo, self.two_sided)];
         let geom = SceneGeometry::build(&scene);
@@ -142,24 +146,30 @@ impl UmbraObjective {
         if opts.model != Model::Tri3 {
             opts.seed = mesh_seed(self.options.seed, mesh);
         }
-        (scene, geom, opts)
+        let mut render = Renderer::new(&scene, &geom, &opts)?.render(None)?.data;
+        zero_leading_bins(
+            &mut render,
+            scene.film.temporal_bins as usize,
+            self.first_bin,
+        );
+        let (loss, adjoint, scale) = scaled_l2(&render, &self.measured, self.fit_scale);
+        Ok(Forward {
+            scene,
+            geom,
+            opts,
+            render,
+            loss,
+            adjoint,
+            scale,
+        })
     }
 }
 
 impl MeshObjective for UmbraObjective {
     fn evaluate(&mut self, mesh: &Mesh) -> Result<Evaluation, String> {
-        let (scene, geom, opts) = self.setup(mesh);
-        let mut h = Renderer::new(&scene, &geom, &opts)
-            .and_then(|r| r.render(None))
+        let f = self.forward(mesh).map_err(|e| e.to_string())?;
+        let g = adjoint::gradient(&f.scene, &f.geom, &f.opts, &f.adjoint, None)
             .map_err(|e| e.to_string())?;
-        zero_leading_bins(
-            &mut h.data,
-            self.scene.film.temporal_bins as usize,
-            self.first_bin,
-        );
-        let (loss, adjoint, s) = scaled_l2(&h.data, &self.measured, self.fit_scale);
-        let g =
-            adjoint::gradient(&scene, &geom, &opts, &adjoint, None).map_err(|e| e.to_string())?;
         let d_vertices = g.vertices.into_iter().next().unwrap_or_default();
         let d_values = if mesh.vertex_values.is_empty() {
             Vec::new()
@@ -170,12 +180,11 @@ impl MeshObjective for UmbraObjective {
                 .flatten()
                 .unwrap_or_else(|| vec![0.0; mesh.vertices.len()])
         };
-        self.last_render = Some(h.data);
         Ok(Evaluation {
-            loss,
+            loss: f.loss,
             d_vertices,
             d_values,
-            report: vec![("scale".into(), s)],
+            report: vec![("scale".into(), f.scale)],
         })
     }
 }

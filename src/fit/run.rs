@@ -146,7 +146,6 @@ impl Factory<'_> {
             fit_scale: self.cfg.fit_scale,
             albedo: self.cfg.albedo,
             two_sided: self.cfg.two_sided,
-            last_render: None,
         })
     }
 }
@@ -203,13 +202,7 @@ fn backprojection_mesh(scene: &Scene, measured: &[f32]) -> Result<Mesh> {
             smooth_iterations: 2,
         },
     )?;
-    Ok(Mesh::new(
-        m.positions
-            .iter()
-            .map(|p| [p.x as f64, p.y as f64, p.z as f64])
-            .collect(),
-        m.triangles,
-    ))
+    Ok(super::fit_mesh(&m))
 }
 
 /// Isotropic remeshing between stages (`optim::remesh`): splits, collapses, flips and

@@ -79,3 +79,19 @@ pub fn total_energy(scene: &Scene, model: Model, spp: u32, seeds: u64) -> (f64, 
     let var = t.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / (k - 1.0);
     (m, (var / k).sqrt())
 }
+
+/// `../shared/data/<name>` beside the repository (or `/work/shared/data/<name>`), where
+/// the machine's shared captures live; the environment variable `var` overrides it.
+pub fn shared_dir(var: &str, name: &str) -> std::path::PathBuf {
+    use std::path::PathBuf;
+    if let Ok(d) = std::env::var(var) {
+        return PathBuf::from(d);
+    }
+    let beside = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data/")
+        .join(name);
+    if beside.is_dir() {
+        return beside;
+    }
+    PathBuf::from("/work/shared/data").join(name)
+}

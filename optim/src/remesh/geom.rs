@@ -107,7 +107,7 @@ pub(super) fn closest_on_segment(p: V3, a: V3, b: V3) -> (V3, f64) {
 /// Classifies `p` into the Voronoi regions of the vertices, edges and interior of the
 /// triangle (the region tests of Ericson, *Real-Time Collision Detection*, §5.1.5).
 /// Degenerate triangles are handled as the union of their three edges.
-pub(super) fn closest_on_triangle(p: V3, a: V3, b: V3, c: V3) -> (V3, [f64; 3]) {
+pub fn closest_on_triangle(p: V3, a: V3, b: V3, c: V3) -> (V3, [f64; 3]) {
     if unit_normal(a, b, c).is_none() {
         return closest_on_degenerate(p, a, b, c);
     }

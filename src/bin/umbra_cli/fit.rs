@@ -88,15 +88,11 @@ fn load_schedule(args: &FitArgs) -> Result<optim::Schedule> {
 fn to_mesh(scene: &Scene) -> Result<optim::Mesh> {
     let mut m = optim::Mesh::default();
     for o in &scene.objects {
+        let part = umbra::fit::fit_mesh(&o.mesh);
         let base = m.vertices.len() as u32;
-        m.vertices.extend(
-            o.mesh
-                .positions
-                .iter()
-                .map(|p| [p.x as f64, p.y as f64, p.z as f64]),
-        );
+        m.vertices.extend(part.vertices);
         m.faces
-            .extend(o.mesh.triangles.iter().map(|t| t.map(|i| i + base)));
+            .extend(part.faces.iter().map(|t| t.map(|i| i + base)));
     }
     if m.faces.is_empty() {
         return Err(Error::Invalid(

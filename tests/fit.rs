@@ -67,7 +67,10 @@ fn config(schedule: Schedule) -> FitConfig {
         init: Init::Plane,
         model: Model::Tri3,
         spp: 8,
-        fit_scale: true,
+        intensity: umbra::fit::IntensityModel {
+            scale: true,
+            background: false,
+        },
         two_sided: true,
         albedo: 0.9,
         resume: false,

@@ -6,8 +6,17 @@
 //! distance from `p` to the nearest point of `Y`'s triangles (m). Also the one-sided
 //! means and the 90th percentiles, since a fit can cover the truth well and still have
 //! a stray flap (or the reverse).
+//!
+//! NLOS data constrain only the surface the wall sees: the back of a sphere or the
+//! inside of a concave fold returns no light, whether it belongs to the true surface or
+//! to the fitted one. [`chamfer_seen`] therefore measures each direction over the points
+//! of its source surface that face, and are unoccluded from, at least one of nine scan
+//! points (the scan rectangle's corners, edge midpoints and centre), against the whole
+//! of the other surface.
 
-use glam::DVec3;
+use crate::geometry::SceneGeometry;
+use crate::scene::Scene;
+use glam::{DVec3, Vec3};
 use optim::Mesh;
 use rayon::prelude::*;
 
@@ -30,6 +39,11 @@ fn tri(m: &Mesh, f: usize) -> [DVec3; 3] {
 /// `n` points on `m`, area-weighted: each triangle gets points in proportion to its area
 /// on a low-discrepancy (R2) sequence of barycentric coordinates.
 pub fn sample_surface(m: &Mesh, n: usize) -> Vec<DVec3> {
+    sample_faces(m, n).into_iter().map(|(p, _)| p).collect()
+}
+
+/// [`sample_surface`]'s points with the face each lies on.
+fn sample_faces(m: &Mesh, n: usize) -> Vec<(DVec3, usize)> {
     let areas: Vec<f64> = (0..m.faces.len())
         .map(|f| {
             let [a, b, c] = tri(m, f);
@@ -55,7 +69,7 @@ pub fn sample_surface(m: &Mesh, n: usize) -> Vec<DVec3> {
             if u + v > 1.0 {
                 (u, v) = (1.0 - u, 1.0 - v);
             }
-            points.push(p0 + u * (p1 - p0) + v * (p2 - p0));
+            points.push((p0 + u * (p1 - p0) + v * (p2 - p0), f));
         }
     }
     points
@@ -100,6 +114,66 @@ pub fn chamfer(fit: &Mesh, truth: &Mesh, n: usize) -> Chamfer {
         fit_to_truth_p90: f2t90,
         truth_to_fit_p90: t2f90,
     }
+}
+
+/// The points of `n` samples on `mesh` that face, and are unoccluded from, one of the
+/// nine viewpoints on `scene`'s scan rectangle, with `mesh` as the scene's only hidden
+/// object; and their share of the samples.
+fn seen_samples(mesh: &Mesh, scene: &Scene, two_sided: bool, n: usize) -> (Vec<DVec3>, f64) {
+    let scene = Scene {
+        objects: vec![super::objective::hidden_object(mesh, 1.0, two_sided)],
+        ..scene.clone()
+    };
+    let geometry = SceneGeometry::build(&scene);
+    let s = &scene.scan;
+    let viewpoints: Vec<Vec3> = (0..9)
+        .map(|k| {
+            let (i, j) = ((k % 3) as f32 - 1.0, (k / 3) as f32 - 1.0);
+            s.center + 0.5 * i * s.axis_u + 0.5 * j * s.axis_v
+        })
+        .collect();
+    let samples = sample_faces(mesh, n);
+    let seen: Vec<DVec3> = samples
+        .par_iter()
+        .filter(|(p, f)| {
+            let [a, b, c] = tri(mesh, *f);
+            let normal = (b - a).cross(c - a).normalize_or_zero().as_vec3();
+            let p = p.as_vec3();
+            viewpoints.iter().any(|&x_s| {
+                let facing = normal.dot(x_s - p);
+                (facing > 0.0 || (two_sided && facing < 0.0)) && !geometry.occluded(p, x_s)
+            })
+        })
+        .map(|(p, _)| *p)
+        .collect();
+    let share = seen.len() as f64 / samples.len().max(1) as f64;
+    (seen, share)
+}
+
+/// The Chamfer distance between the parts of `fit` and `truth` that the wall sees
+/// (module doc): fit → truth over the fitted surface's seen points (fitted surfaces are
+/// two-sided), truth → fit over the truth's (one-sided unless every object of
+/// `truth_scene` is two-sided). Also returns the seen shares of the fit's and the
+/// truth's area.
+pub fn chamfer_seen(
+    fit: &Mesh,
+    truth: &Mesh,
+    truth_scene: &Scene,
+    n: usize,
+) -> (Chamfer, [f64; 2]) {
+    let two_sided = truth_scene.objects.iter().all(|o| o.two_sided);
+    let (fit_seen, fit_share) = seen_samples(fit, truth_scene, true, n);
+    let (truth_seen, truth_share) = seen_samples(truth, truth_scene, two_sided, n);
+    let (f2t, f2t90) = mean_p90(distances(&fit_seen, truth));
+    let (t2f, t2f90) = mean_p90(distances(&truth_seen, fit));
+    let c = Chamfer {
+        symmetric: 0.5 * (f2t + t2f),
+        fit_to_truth: f2t,
+        truth_to_fit: t2f,
+        fit_to_truth_p90: f2t90,
+        truth_to_fit_p90: t2f90,
+    };
+    (c, [fit_share, truth_share])
 }
 
 #[cfg(test)]

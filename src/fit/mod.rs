@@ -14,7 +14,7 @@ pub mod objective;
 pub mod resolution;
 pub mod run;
 
-pub use objective::{scaled_l2, UmbraObjective};
+pub use objective::{intensity_l2, Intensity, IntensityModel, UmbraObjective};
 
 use crate::geometry::mesh::TriMesh;
 

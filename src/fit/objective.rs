@@ -1,16 +1,21 @@
 //! The renderer as the fit's objective: the hidden mesh being fitted replaces the scene's
 //! hidden objects, Umbra renders it, and the loss against the measurement `M` is the
-//! scale-free relative squared error (the square of the relative L2 error)
+//! relative squared error (the square of the relative L2 error) after the best intensity
+//! scale `s` and constant background `b`
 //!
-//! `L(θ) = ‖s* H(θ) − M‖² / ‖M‖²`, with `s* = max(⟨H, M⟩ / ⟨H, H⟩, 0)`
+//! `L(θ) = min_{s ≥ 0, b ≥ 0} ‖s H(θ) + b − M‖²_U / ‖M‖²_U`,
 //!
-//! (`s` fixed to 1 when the measurement's absolute scale is known). `s*` minimises `L`
-//! over `s` for the current render, so by the envelope theorem
-//! `dL/dθ = 2 s* ⟨s* H − M, dH/dθ⟩ / ‖M‖²`: the adjoint `δH = 2 s* (s* H − M) / ‖M‖²`
-//! goes through [`crate::adjoint::gradient`] (path replay) as any other loss. Real data
-//! have an unknown scale (laser power, detector efficiency), and with it the object's
-//! albedo is not identifiable: `s*` absorbs both; per-vertex albedo, when fitted,
-//! carries only relative variations.
+//! `U` the bins the fit uses (each row's bins from `first_bin` on). Real data have an
+//! unknown scale (laser power, detector efficiency; with it the object's albedo is not
+//! identifiable, so `s` absorbs both and per-vertex albedo carries only relative
+//! variations) and a floor of dark counts and ambient light that no hidden surface
+//! explains (in the LCT `diffuse_s` capture about half of `‖M‖`). `(s, b)` is the
+//! non-negative least-squares solution of a 2 x 2 system, in closed form
+//! ([`Intensity::fit`]); `s = 1` or `b = 0` when held. Since `(s, b)` minimise `L` for
+//! the current render, by the envelope theorem (which holds at the active constraints
+//! too) `dL/dθ = 2 s ⟨s H + b − M, dH/dθ⟩_U / ‖M‖²_U`: the adjoint
+//! `δH = 2 s (s H + b − M) / ‖M‖²` on `U`, 0 elsewhere, goes through
+//! [`crate::adjoint::gradient`] (path replay) as any other loss.
 //!
 //! Monte Carlo models are seeded from the parameters (a hash of the mesh's bits), so the
 //! same mesh renders the same samples (common random numbers between the cost and the
@@ -23,34 +28,133 @@ use crate::transport::{RenderOptions, Renderer};
 use glam::Vec3;
 use optim::{Evaluation, Mesh, MeshObjective};
 
-/// `(loss, δH, s*)` of the module doc; `fit_scale = false` holds `s = 1`.
-pub fn scaled_l2(render: &[f32], measured: &[f32], fit_scale: bool) -> (f64, Vec<f32>, f64) {
-    let (mut hh, mut hm, mut mm) = (0.0f64, 0.0f64, 0.0f64);
-    for (&h, &m) in render.iter().zip(measured) {
-        let (h, m) = (h as f64, m as f64);
-        hh += h * h;
-        hm += h * m;
-        mm += m * m;
+/// Which of the intensity parameters a fit estimates (the others are held at `s = 1`,
+/// `b = 0`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct IntensityModel {
+    pub scale: bool,
+    pub background: bool,
+}
+
+/// The fitted scale `s` (measurement units per render unit) and background `b`
+/// (measurement units per bin).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Intensity {
+    pub scale: f64,
+    pub background: f64,
+}
+
+/// Sums over the fitted bins `U`: `⟨H,H⟩, ⟨H,1⟩, ⟨H,M⟩, ⟨M,1⟩, ⟨M,M⟩, |U|`.
+#[derive(Clone, Copy, Debug, Default)]
+struct Moments {
+    hh: f64,
+    h1: f64,
+    hm: f64,
+    m1: f64,
+    mm: f64,
+    n: f64,
+}
+
+impl Moments {
+    /// `‖s H + b − M‖²` from the moments.
+    fn residual(&self, s: f64, b: f64) -> f64 {
+        let r = s * s * self.hh + b * b * self.n + self.mm + 2.0 * s * b * self.h1
+            - 2.0 * s * self.hm
+            - 2.0 * b * self.m1;
+        r.max(0.0)
     }
-    let s = if !fit_scale {
-        1.0
-    } else if hh > 0.0 {
-        (hm / hh).max(0.0)
-    } else {
-        0.0
-    };
-    let mm = mm.max(f64::MIN_POSITIVE);
+}
+
+impl Intensity {
+    /// The non-negative least-squares `(s, b)` of the module doc: the unconstrained
+    /// solution if it is feasible, else the best of the solutions on the boundary
+    /// (`b = 0`, `s = 0`, both 0).
+    fn fit(m: &Moments, model: IntensityModel) -> Intensity {
+        let s_only = if model.scale && m.hh > 0.0 {
+            (m.hm / m.hh).max(0.0)
+        } else {
+            1.0
+        };
+        if !model.background {
+            return Intensity {
+                scale: s_only,
+                background: 0.0,
+            };
+        }
+        let b_only = |s: f64| ((m.m1 - s * m.h1) / m.n.max(1.0)).max(0.0);
+        if !model.scale {
+            return Intensity {
+                scale: 1.0,
+                background: b_only(1.0),
+            };
+        }
+        let det = m.hh * m.n - m.h1 * m.h1;
+        if det > 1e-12 * m.hh * m.n {
+            let s = (m.hm * m.n - m.h1 * m.m1) / det;
+            let b = (m.hh * m.m1 - m.h1 * m.hm) / det;
+            if s >= 0.0 && b >= 0.0 {
+                return Intensity {
+                    scale: s,
+                    background: b,
+                };
+            }
+        }
+        let scale_only = Intensity {
+            scale: s_only,
+            background: 0.0,
+        };
+        let background_only = Intensity {
+            scale: 0.0,
+            background: b_only(0.0),
+        };
+        if m.residual(scale_only.scale, 0.0) <= m.residual(0.0, background_only.background) {
+            scale_only
+        } else {
+            background_only
+        }
+    }
+}
+
+/// `(loss, δH, intensity)` of the module doc over the bins `first_bin..` of every
+/// `bins`-long row (`first_bin = 0`: all).
+pub fn intensity_l2(
+    render: &[f32],
+    measured: &[f32],
+    bins: usize,
+    first_bin: usize,
+    model: IntensityModel,
+) -> (f64, Vec<f32>, Intensity) {
+    let bins = bins.max(1);
+    let used = |i: usize| i % bins >= first_bin;
+    let mut m = Moments::default();
+    for (i, (&h, &y)) in render.iter().zip(measured).enumerate() {
+        if used(i) {
+            let (h, y) = (h as f64, y as f64);
+            m.hh += h * h;
+            m.h1 += h;
+            m.hm += h * y;
+            m.m1 += y;
+            m.mm += y * y;
+            m.n += 1.0;
+        }
+    }
+    let k = Intensity::fit(&m, model);
+    let mm = m.mm.max(f64::MIN_POSITIVE);
     let mut loss = 0.0;
     let adjoint = render
         .iter()
         .zip(measured)
-        .map(|(&h, &m)| {
-            let r = s * h as f64 - m as f64;
+        .enumerate()
+        .map(|(i, (&h, &y))| {
+            if !used(i) {
+                return 0.0;
+            }
+            let r = k.scale * h as f64 + k.background - y as f64;
             loss += r * r;
-            (2.0 * s * r / mm) as f32
+            (2.0 * k.scale * r / mm) as f32
         })
         .collect();
-    (loss / mm, adjoint, s)
+    (loss / mm, adjoint, k)
 }
 
 /// The fitted mesh as a hidden object.
@@ -96,7 +200,7 @@ pub struct UmbraObjective {
     pub scene: Scene,
     pub measured: Vec<f32>,
     pub options: RenderOptions,
-    pub fit_scale: bool,
+    pub intensity: IntensityModel,
     /// Albedo of the fitted object where it has no per-vertex albedo.
     pub albedo: f32,
     pub two_sided: bool,
@@ -123,14 +227,14 @@ struct Forward {
     render: Vec<f32>,
     loss: f64,
     adjoint: Vec<f32>,
-    scale: f64,
+    intensity: Intensity,
 }
 
 impl UmbraObjective {
-    /// Renders `mesh` and returns `(render, loss, s*)` without the gradient.
-    pub fn render(&self, mesh: &Mesh) -> crate::Result<(Vec<f32>, f64, f64)> {
+    /// Renders `mesh` and returns `(render, loss, (s, b))` without the gradient.
+    pub fn render(&self, mesh: &Mesh) -> crate::Result<(Vec<f32>, f64, Intensity)> {
         let f = self.forward(mesh)?;
-        Ok((f.render, f.loss, f.scale))
+        Ok((f.render, f.loss, f.intensity))
     }
 
     /// The scene with `mesh` as its hidden object, its render (leading bins left out)
@@ -152,7 +256,13 @@ impl UmbraObjective {
             scene.film.temporal_bins as usize,
             self.first_bin,
         );
-        let (loss, adjoint, scale) = scaled_l2(&render, &self.measured, self.fit_scale);
+        let (loss, adjoint, intensity) = intensity_l2(
+            &render,
+            &self.measured,
+            scene.film.temporal_bins as usize,
+            self.first_bin,
+            self.intensity,
+        );
         Ok(Forward {
             scene,
             geom,
@@ -160,7 +270,7 @@ impl UmbraObjective {
             render,
             loss,
             adjoint,
-            scale,
+            intensity,
         })
     }
 }
@@ -184,7 +294,10 @@ impl MeshObjective for UmbraObjective {
             loss: f.loss,
             d_vertices,
             d_values,
-            report: vec![("scale".into(), f.scale)],
+            report: vec![
+                ("scale".into(), f.intensity.scale),
+                ("background".into(), f.intensity.background),
+            ],
         })
     }
 }
@@ -193,26 +306,69 @@ impl MeshObjective for UmbraObjective {
 mod tests {
     use super::*;
 
-    #[test]
-    fn scaled_l2_gradient_matches_finite_differences() {
-        let m = [0.3f32, 1.2, 0.0, 2.5, 0.7];
-        let h = [0.1f32, 0.5, 0.2, 1.1, 0.2];
-        let (l0, adj, s) = scaled_l2(&h, &m, true);
-        assert!(s > 0.0 && l0 > 0.0);
+    const ALL: IntensityModel = IntensityModel {
+        scale: true,
+        background: true,
+    };
+
+    fn fd_check(h: &[f32], m: &[f32], bins: usize, first: usize, model: IntensityModel) {
+        let (l0, adj, _) = intensity_l2(h, m, bins, first, model);
+        assert!(l0 > 0.0);
         for i in 0..h.len() {
             let eps = 1e-3f32;
-            let (mut hp, mut hm) = (h, h);
+            let (mut hp, mut hm) = (h.to_vec(), h.to_vec());
             hp[i] += eps;
             hm[i] -= eps;
-            let fd = (scaled_l2(&hp, &m, true).0 - scaled_l2(&hm, &m, true).0) / (2.0 * eps as f64);
+            let fd = (intensity_l2(&hp, m, bins, first, model).0
+                - intensity_l2(&hm, m, bins, first, model).0)
+                / (2.0 * eps as f64);
             assert!(
                 (fd - adj[i] as f64).abs() < 1e-3 * fd.abs().max(1e-3),
-                "{i}: {fd} {}",
+                "{model:?} {i}: {fd} {}",
                 adj[i]
             );
         }
-        // A render proportional to the measurement has zero loss at any scale.
-        let (l, _, s) = scaled_l2(&m.map(|v| 0.25 * v), &m, true);
-        assert!(l < 1e-12 && (s - 4.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn loss_gradient_matches_finite_differences() {
+        let m = [0.3f32, 1.2, 0.9, 2.5, 0.7, 0.4];
+        let h = [0.1f32, 0.5, 0.2, 1.1, 0.2, 0.05];
+        for (scale, background) in [(true, false), (true, true), (false, true), (false, false)] {
+            fd_check(&h, &m, 3, 0, IntensityModel { scale, background });
+            fd_check(&h, &m, 3, 1, IntensityModel { scale, background });
+        }
+        // Masked bins have no adjoint.
+        let (_, adj, _) = intensity_l2(&h, &m, 3, 1, ALL);
+        assert!(adj[0] == 0.0 && adj[3] == 0.0 && adj[1] != 0.0);
+    }
+
+    #[test]
+    fn recovers_scale_and_background() {
+        let h = [0.0f32, 0.5, 2.0, 1.0, 0.25, 0.0, 3.0, 0.1];
+        let m = h.map(|v| 4.0 * v + 0.75);
+        let (l, _, k) = intensity_l2(&h, &m, 8, 0, ALL);
+        assert!(l < 1e-12, "{l}");
+        assert!(
+            (k.scale - 4.0).abs() < 1e-5 && (k.background - 0.75).abs() < 1e-5,
+            "{k:?}"
+        );
+        // Without a background term the same data leave a residual.
+        let (l, _, k) = intensity_l2(
+            &h,
+            &m,
+            8,
+            0,
+            IntensityModel {
+                scale: true,
+                background: false,
+            },
+        );
+        assert!(l > 1e-3 && k.background == 0.0);
+        // A negative background is not allowed: the constrained optimum has b = 0.
+        let m = h.map(|v| 4.0 * v - 0.2);
+        let (_, _, k) = intensity_l2(&h, &m, 8, 0, ALL);
+        assert_eq!(k.background, 0.0);
+        assert!(k.scale > 0.0);
     }
 }

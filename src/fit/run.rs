@@ -10,7 +10,7 @@
 //! - `checkpoint/`: the resumable state (see `optim::fit`).
 
 use super::init::{depth_from_data, plane, sphere};
-use super::objective::{zero_leading_bins, UmbraObjective};
+use super::objective::{zero_leading_bins, Intensity, IntensityModel, UmbraObjective};
 use super::resolution::at_resolution;
 use crate::error::{Error, Result};
 use crate::io::plot::{log_chart, side_by_side, Series};
@@ -46,9 +46,10 @@ pub struct FitConfig {
     /// The model stages use unless they name their own (`auto` means `tri3`).
     pub model: Model,
     pub spp: u32,
-    /// Fit the intensity scale in closed form (real data); false when the measurement's
-    /// absolute scale matches Umbra's radiometry.
-    pub fit_scale: bool,
+    /// Fit the intensity scale (real data; false when the measurement's absolute scale
+    /// matches Umbra's radiometry) and a constant background (dark counts, ambient
+    /// light), both in closed form (`objective` module doc).
+    pub intensity: IntensityModel,
     pub two_sided: bool,
     /// Albedo of the fitted surface (absorbed by the scale when that is fitted).
     pub albedo: f32,
@@ -70,7 +71,8 @@ pub struct FitReport {
     /// The loss `‖s H − M‖² / ‖M‖²` of the final mesh at full resolution (its square
     /// root is the relative L2 error).
     pub final_loss: f64,
-    pub scale: f64,
+    /// The final mesh's intensity scale and background.
+    pub intensity: Intensity,
     pub rejected_steps: u64,
     pub files: Vec<PathBuf>,
 }
@@ -143,7 +145,7 @@ impl Factory<'_> {
             scene,
             measured,
             options,
-            fit_scale: self.cfg.fit_scale,
+            intensity: self.cfg.intensity,
             albedo: self.cfg.albedo,
             two_sided: self.cfg.two_sided,
         })
@@ -288,15 +290,15 @@ pub fn fit(
         ..last_stage.clone()
     };
     let objective = factory.build(&full)?;
-    let (render, final_loss, scale) = objective.render(&outcome.mesh)?;
-    files.push(write_transients(out, &base, measured, &render, scale)?);
+    let (render, final_loss, intensity) = objective.render(&outcome.mesh)?;
+    files.push(write_transients(out, &base, measured, &render, intensity)?);
     Ok(FitReport {
         mesh: surface,
         full_mesh: outcome.mesh,
         history: outcome.history,
         seconds: start.elapsed().as_secs_f64(),
         final_loss,
-        scale,
+        intensity,
         rejected_steps: outcome.rejected_steps,
         files,
     })
@@ -304,16 +306,23 @@ pub fn fit(
 
 fn write_loss(out: &Path, history: &[LossRecord]) -> Result<Vec<PathBuf>> {
     let csv_path = out.join("loss.csv");
-    let mut csv = String::from("iteration,stage,cost,data_loss,smoothness,scale\n");
+    let mut csv = String::from("iteration,stage,cost,data_loss,smoothness,scale,background\n");
     for r in history {
-        let scale = r
-            .report
-            .iter()
-            .find(|(k, _)| k == "scale")
-            .map_or(f64::NAN, |(_, v)| *v);
+        let value = |key: &str| {
+            r.report
+                .iter()
+                .find(|(k, _)| k == key)
+                .map_or(f64::NAN, |(_, v)| *v)
+        };
         csv.push_str(&format!(
-            "{},{},{:e},{:e},{:e},{:e}\n",
-            r.iteration, r.stage, r.cost, r.data_loss, r.smoothness, scale
+            "{},{},{:e},{:e},{:e},{:e},{:e}\n",
+            r.iteration,
+            r.stage,
+            r.cost,
+            r.data_loss,
+            r.smoothness,
+            value("scale"),
+            value("background")
         ));
     }
     write_atomic(&csv_path, csv.as_bytes()).map_err(|e| Error::io(&csv_path, e))?;
@@ -352,15 +361,15 @@ fn write_loss(out: &Path, history: &[LossRecord]) -> Result<Vec<PathBuf>> {
     Ok(vec![csv_path, png])
 }
 
-/// Streak images (scan x along the middle row, time) of the measurement, the scaled fit
-/// and their absolute difference, over the bins where the measurement has signal (above
+/// Streak images (scan x along the middle row, time) of the measurement, the fit (times
+/// the scale, plus the background) and their absolute difference, over the bins where the measurement has signal (above
 /// 1 % of its peak, with a margin), at most 140 columns.
 fn write_transients(
     out: &Path,
     scene: &Scene,
     measured: &[f32],
     render: &[f32],
-    scale: f64,
+    intensity: Intensity,
 ) -> Result<PathBuf> {
     let bins = scene.film.temporal_bins as usize;
     let (nx, ny) = (scene.scan.nx as usize, scene.scan.ny as usize);
@@ -383,17 +392,20 @@ fn write_transients(
     let span = last + 1 - first;
     let k = span.div_ceil(140).max(1);
     let cols = span / k;
-    let streak = |data: &[f32], s: f32| -> Vec<f32> {
+    let streak = |data: &[f32], s: f32, b: f32| -> Vec<f32> {
         let mut img = vec![0.0f32; nx * cols];
         for ix in 0..nx {
             let row = &data[(row0 + ix) * bins + first..(row0 + ix + 1) * bins];
             for c in 0..cols {
-                img[ix * cols + c] = s * row[c * k..(c + 1) * k].iter().sum::<f32>();
+                img[ix * cols + c] = s * row[c * k..(c + 1) * k].iter().sum::<f32>() + k as f32 * b;
             }
         }
         img
     };
-    let (m, f) = (streak(measured, 1.0), streak(render, scale as f32));
+    let (m, f) = (
+        streak(measured, 1.0, 0.0),
+        streak(render, intensity.scale as f32, intensity.background as f32),
+    );
     let d: Vec<f32> = m.iter().zip(&f).map(|(a, b)| (a - b).abs()).collect();
     let path = out.join("transients.png");
     let opl = |b: usize| scene.film.start_opl + b as f32 * scene.film.bin_width_opl;
@@ -406,7 +418,7 @@ fn write_transients(
         ),
         &[
             ("measured", cols, nx, &m),
-            ("fitted x scale", cols, nx, &f),
+            ("fitted x scale + background", cols, nx, &f),
             ("|difference|", cols, nx, &d),
         ],
     )?;

@@ -49,6 +49,11 @@ pub struct FitArgs {
     /// The measurement has Umbra's absolute scale: do not fit an intensity scale.
     #[arg(long)]
     pub known_scale: bool,
+    /// Fit a constant background (dark counts, ambient light) with the scale: `true`
+    /// (default with `--measured`) or `false` (default for the demonstration target,
+    /// which has none).
+    #[arg(long)]
+    pub background: Option<bool>,
     /// Samples per measurement of the demonstration target (no `--measured`).
     #[arg(long, default_value_t = 4096)]
     pub target_spp: u32,
@@ -56,6 +61,11 @@ pub struct FitArgs {
     /// (default for LCT `.mat` captures: 0.72 m, the original code's first 600 bins).
     #[arg(long)]
     pub ignore_before: Option<f32>,
+    /// With `--measured`: the scene's hidden objects are the true answer (synthetic data
+    /// from another renderer); report the Chamfer distance to them, as without
+    /// `--measured`.
+    #[arg(long)]
+    pub truth: bool,
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -137,9 +147,14 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
     let (scene, measured, truth) = match &args.measured {
         Some(path) => {
             let m = umbra::io::measured::read_measured(path)?;
+            let truth = if args.truth {
+                Some((to_mesh(&scene)?, scene.clone()))
+            } else {
+                None
+            };
             let scene = m.scene_for(&scene)?;
             m.check_against(&scene)?;
-            (scene, m.transient.data, None)
+            (scene, m.transient.data, truth)
         }
         None => {
             let truth = to_mesh(&scene)?;
@@ -149,7 +164,7 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
                 args.target_spp
             );
             let data = render_target(&scene, args.target_spp, &args.output)?;
-            (scene, data, Some(truth))
+            (scene.clone(), data, Some((truth, scene)))
         }
     };
     let lct_default = args
@@ -173,7 +188,10 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         init,
         model,
         spp: args.spp.max(1),
-        fit_scale: !args.known_scale,
+        intensity: umbra::fit::IntensityModel {
+            scale: !args.known_scale,
+            background: args.background.unwrap_or(args.measured.is_some()),
+        },
         two_sided: true,
         albedo: scene.objects.first().map_or(0.8, |o| o.albedo),
         resume: args.resume,
@@ -221,12 +239,13 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         r => r?,
     };
     println!(
-        "umbra fit: {} iterations in {:.1} s (this run), final loss {:.4e} (relative L2 {:.3}, scale {:.4}), {} vertices / {} faces{} -> {}",
+        "umbra fit: {} iterations in {:.1} s (this run), final loss {:.4e} (relative L2 {:.3}, scale {:.4e}, background {:.4e}), {} vertices / {} faces{} -> {}",
         report.history.len(),
         report.seconds,
         report.final_loss,
         report.final_loss.sqrt(),
-        report.scale,
+        report.intensity.scale,
+        report.intensity.background,
         report.mesh.vertices.len(),
         report.mesh.faces.len(),
         if report.rejected_steps > 0 {
@@ -236,14 +255,74 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         },
         report.files.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
     );
-    if let Some(truth) = truth {
-        let c = umbra::fit::metrics::chamfer(&report.mesh, &truth, 4000);
+    let mut summary = Summary {
+        iterations: report.history.len(),
+        seconds: report.seconds,
+        final_loss: report.final_loss,
+        relative_l2: report.final_loss.sqrt(),
+        scale: report.intensity.scale,
+        background: report.intensity.background,
+        vertices: report.mesh.vertices.len(),
+        faces: report.mesh.faces.len(),
+        rejected_steps: report.rejected_steps,
+        init: args.init.clone(),
+        chamfer: None,
+    };
+    if let Some((truth, truth_scene)) = truth {
+        let (c, seen) = umbra::fit::metrics::chamfer_seen(&report.mesh, &truth, &truth_scene, 4000);
+        let all = umbra::fit::metrics::chamfer(&report.mesh, &truth, 4000);
         println!(
-            "umbra fit: Chamfer distance to the true mesh {:.2} mm (fit->truth {:.2} mm, truth->fit {:.2} mm)",
+            "umbra fit: Chamfer distance between the surfaces seen from the wall ({:.0} % of the fit's area, {:.0} % of the truth's) {:.2} mm (fit->truth {:.2} mm, truth->fit {:.2} mm); between the whole surfaces {:.2} mm",
+            100.0 * seen[0],
+            100.0 * seen[1],
             1e3 * c.symmetric,
             1e3 * c.fit_to_truth,
-            1e3 * c.truth_to_fit
+            1e3 * c.truth_to_fit,
+            1e3 * all.symmetric,
         );
+        summary.chamfer = Some(ChamferSummary {
+            seen_mm: 1e3 * c.symmetric,
+            seen_fit_to_truth_mm: 1e3 * c.fit_to_truth,
+            seen_truth_to_fit_mm: 1e3 * c.truth_to_fit,
+            seen_fit_to_truth_p90_mm: 1e3 * c.fit_to_truth_p90,
+            seen_truth_to_fit_p90_mm: 1e3 * c.truth_to_fit_p90,
+            fit_seen_area_fraction: seen[0],
+            truth_seen_area_fraction: seen[1],
+            whole_mm: 1e3 * all.symmetric,
+        });
     }
+    let path = args.output.join("summary.toml");
+    let text = toml::to_string(&summary).map_err(|e| Error::Invalid(format!("summary: {e}")))?;
+    optim::checkpoint::write_atomic(&path, text.as_bytes()).map_err(|e| Error::io(&path, e))?;
     Ok(())
+}
+
+/// `OUTDIR/summary.toml`: the fit's figures, for scripts (the recovery studies).
+#[derive(serde::Serialize)]
+struct Summary {
+    iterations: usize,
+    seconds: f64,
+    final_loss: f64,
+    relative_l2: f64,
+    scale: f64,
+    background: f64,
+    vertices: usize,
+    faces: usize,
+    rejected_steps: u64,
+    init: String,
+    chamfer: Option<ChamferSummary>,
+}
+
+/// Chamfer distances to the truth (mm); "seen" = the truth's surface seen from the scan
+/// (`umbra::fit::metrics::chamfer_seen`).
+#[derive(serde::Serialize)]
+struct ChamferSummary {
+    seen_mm: f64,
+    seen_fit_to_truth_mm: f64,
+    seen_truth_to_fit_mm: f64,
+    seen_fit_to_truth_p90_mm: f64,
+    seen_truth_to_fit_p90_mm: f64,
+    fit_seen_area_fraction: f64,
+    truth_seen_area_fraction: f64,
+    whole_mm: f64,
 }

@@ -106,7 +106,7 @@ fn a_plane_fits_the_letter_rendered_by_the_path_tracer() {
     let report = fit(&scene, &measured, &cfg, &d, quiet(None)).unwrap();
     let t = truth(&scene);
     let before = chamfer(
-        &initial_mesh(&scene, &measured, &Init::Plane).unwrap(),
+        &initial_mesh(&scene, &measured, 0, &Init::Plane).unwrap(),
         &t,
         2000,
     );

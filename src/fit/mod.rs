@@ -3,6 +3,8 @@
 //! - [`objective`]: the renderer as an `optim::MeshObjective` (scale-free relative L2,
 //!   path-replay gradients);
 //! - [`resolution`]: the coarse-to-fine schedule's downsampled measurement and scene;
+//! - [`reconstruction`]: the backprojection initial mesh and the picture of the fit
+//!   next to a backprojection;
 //! - [`init`]: initial meshes (a plane or a sphere in front of the wall at the depth the
 //!   data's first returns imply);
 //! - [`run`]: the whole fit with its outputs (mesh, loss curve, transients side by side,
@@ -11,6 +13,7 @@
 pub mod init;
 pub mod metrics;
 pub mod objective;
+pub mod reconstruction;
 pub mod resolution;
 pub mod run;
 

@@ -209,6 +209,16 @@ pub struct UmbraObjective {
     pub first_bin: usize,
 }
 
+/// The first bin of the scene's film that starts at or after `ignore_before_opl` (m),
+/// 0 when nothing is ignored.
+pub fn first_fitted_bin(scene: &Scene, ignore_before_opl: Option<f32>) -> usize {
+    ignore_before_opl.map_or(0, |opl| {
+        ((opl - scene.film.start_opl) / scene.film.bin_width_opl)
+            .ceil()
+            .max(0.0) as usize
+    })
+}
+
 /// Zeroes bins `..first` of every `bins`-long row.
 pub fn zero_leading_bins(data: &mut [f32], bins: usize, first: usize) {
     if first == 0 || bins == 0 {

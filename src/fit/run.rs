@@ -5,13 +5,19 @@
 //!   `mesh_all.obj` with every face and its albedo as vertex colour;
 //! - `loss.csv` and `loss.png`: the loss per iteration (data term and total), stage
 //!   boundaries marked;
+//! - `reconstruction.png`: a filtered backprojection of the measurement (front
+//!   projection and depth map) next to the fitted surface's depth map
+//!   (`reconstruction` module doc);
 //! - `transients.png`: measured and fitted transients side by side (streak images of
 //!   the middle scan row, the fitted one times the fitted scale), and their difference;
 //! - `checkpoint/`: the resumable state (see `optim::fit`).
 
 use super::init::{depth_from_data, plane, sphere};
-use super::objective::{zero_leading_bins, Intensity, IntensityModel, UmbraObjective};
-use super::resolution::at_resolution;
+use super::objective::{
+    first_fitted_bin, zero_leading_bins, Intensity, IntensityModel, UmbraObjective,
+};
+use super::reconstruction::{backprojection_mesh, write_reconstruction_png};
+use super::resolution::{at_resolution, ScanReduce};
 use crate::error::{Error, Result};
 use crate::io::plot::{log_chart, side_by_side, Series};
 use crate::scene::{CaptureType, Model, Scene};
@@ -78,15 +84,17 @@ pub struct FitReport {
 }
 
 /// The default coarse-to-fine schedule: Adam on a coarse grid (time bins x4, scan
-/// points x2); remeshing to 0.4 of the mean edge, then Adam with albedo at half the time
-/// resolution; L-BFGS at full time resolution on the coarse scan; L-BFGS at full
-/// resolution.
+/// points x2) with a soft large-steps parameterisation (λ = 2) and a large step
+/// (0.03), which lets the mesh bend to the data; remeshing to 0.4 of the mean edge, then
+/// Adam with albedo at half the time resolution; L-BFGS at full time resolution on the
+/// coarse scan; L-BFGS at full resolution. λ and the step sizes come from the sweep in
+/// docs/FITTING.md ("Choosing the schedule").
 pub fn default_schedule() -> Schedule {
     let stage = |iters, solver, lr, time, scan, fit_albedo, remesh_factor| Stage {
         iters,
         solver,
         lr,
-        large_steps: 20.0,
+        large_steps: 2.0,
         laplacian: 0.0,
         fit_albedo,
         albedo_step: 10.0,
@@ -99,8 +107,8 @@ pub fn default_schedule() -> Schedule {
     };
     Schedule {
         stages: vec![
-            stage(40, SolverKind::Adam, 0.01, 4, 2, false, None),
-            stage(40, SolverKind::Adam, 0.004, 2, 2, true, Some(0.4)),
+            stage(100, SolverKind::Adam, 0.03, 4, 2, false, None),
+            stage(60, SolverKind::Adam, 0.01, 2, 2, true, Some(0.4)),
             stage(20, SolverKind::Lbfgs, 0.0, 1, 2, true, None),
             stage(10, SolverKind::Lbfgs, 0.0, 1, 1, true, None),
         ],
@@ -121,6 +129,7 @@ impl Factory<'_> {
             self.measured,
             stage.time_downsample,
             stage.scan_downsample,
+            ScanReduce::Subsample,
         )?;
         let model = match &stage.model {
             Some(name) => Model::parse(name).ok_or_else(|| {
@@ -133,11 +142,7 @@ impl Factory<'_> {
             spp: stage.spp.unwrap_or(self.cfg.spp),
             ..RenderOptions::from_scene(&scene)
         };
-        let first_bin = self.cfg.ignore_before_opl.map_or(0, |opl| {
-            ((opl - scene.film.start_opl) / scene.film.bin_width_opl)
-                .ceil()
-                .max(0.0) as usize
-        });
+        let first_bin = first_fitted_bin(&scene, self.cfg.ignore_before_opl);
         let mut measured = measured;
         zero_leading_bins(&mut measured, scene.film.temporal_bins as usize, first_bin);
         Ok(UmbraObjective {
@@ -164,8 +169,14 @@ impl ObjectiveFactory for Factory<'_> {
     }
 }
 
-/// The initial mesh of `cfg.init` for this measurement.
-pub fn initial_mesh(scene: &Scene, measured: &[f32], init: &Init) -> Result<Mesh> {
+/// The initial mesh of `cfg.init` for this measurement, whose bins before `first_bin`
+/// are left out of the fit.
+pub fn initial_mesh(
+    scene: &Scene,
+    measured: &[f32],
+    first_bin: usize,
+    init: &Init,
+) -> Result<Mesh> {
     let depth = || {
         depth_from_data(scene, measured).ok_or_else(|| {
             Error::Invalid("the measurement has no signal to place the initial mesh".into())
@@ -178,33 +189,8 @@ pub fn initial_mesh(scene: &Scene, measured: &[f32], init: &Init) -> Result<Mesh
             sphere(scene, depth()?, r, 2)
         }
         Init::Mesh(m) => m.clone(),
-        Init::Backprojection => backprojection_mesh(scene, measured)?,
+        Init::Backprojection => backprojection_mesh(scene, measured, first_bin)?,
     })
-}
-
-/// A 32 x 32 x 64 filtered backprojection (time blurred by one bin), its depth map at
-/// 30 % of the peak, and the wall-facing height field over the filled columns.
-fn backprojection_mesh(scene: &Scene, measured: &[f32]) -> Result<Mesh> {
-    use crate::recon::{
-        backproject_with, depth_map, depth_map_mesh, BackprojectOptions, MeshOptions, VoxelGrid,
-        WallFrame,
-    };
-    let grid = VoxelGrid::for_scene(scene, [32, 32, 64])?;
-    let opts = BackprojectOptions {
-        time_sigma_opl: scene.film.bin_width_opl,
-        ..BackprojectOptions::default()
-    };
-    let volume = backproject_with(scene, measured, &grid, &opts)?;
-    let depth = depth_map(&volume, 0.3)?;
-    let m = depth_map_mesh(
-        &depth,
-        &grid,
-        &WallFrame::of(scene),
-        &MeshOptions {
-            smooth_iterations: 2,
-        },
-    )?;
-    Ok(super::fit_mesh(&m))
 }
 
 /// Isotropic remeshing between stages (`optim::remesh`): splits, collapses, flips and
@@ -241,19 +227,15 @@ pub fn fit(
         )));
     }
     let mut measured = measured.to_vec();
-    if let Some(opl) = cfg.ignore_before_opl {
-        let first = ((opl - base.film.start_opl) / base.film.bin_width_opl)
-            .ceil()
-            .max(0.0) as usize;
-        zero_leading_bins(&mut measured, base.film.temporal_bins as usize, first);
-    }
+    let first = first_fitted_bin(&base, cfg.ignore_before_opl);
+    zero_leading_bins(&mut measured, base.film.temporal_bins as usize, first);
     let measured = &measured[..];
     let last_stage = cfg
         .schedule
         .stages
         .last()
         .ok_or_else(|| Error::Invalid("the fit schedule has no stage".into()))?;
-    let initial = initial_mesh(&base, measured, &cfg.init)?;
+    let initial = initial_mesh(&base, measured, first, &cfg.init)?;
     let mut factory = Factory {
         scene: &base,
         measured,
@@ -292,6 +274,9 @@ pub fn fit(
     let objective = factory.build(&full)?;
     let (render, final_loss, intensity) = objective.render(&outcome.mesh)?;
     files.push(write_transients(out, &base, measured, &render, intensity)?);
+    let picture = out.join("reconstruction.png");
+    write_reconstruction_png(&picture, &base, measured, first, &surface)?;
+    files.push(picture);
     Ok(FitReport {
         mesh: surface,
         full_mesh: outcome.mesh,

@@ -225,3 +225,33 @@ fn smooth(dm: &DepthMap, iterations: usize) -> Vec<f32> {
     }
     d
 }
+/// The depth map of the hidden surfaces of `geometry` over the columns of `grid`: the
+/// distance (m) from the wall along its normal to the first hidden surface, NaN where
+/// the column's ray hits none (intensity 1 on a hit, 0 otherwise). The same picture as
+/// [`depth_map`] for a surface instead of a volume, so the two compare pixel by pixel.
+pub fn surface_depth_map(
+    geometry: &crate::geometry::SceneGeometry,
+    grid: &VoxelGrid,
+    frame: &WallFrame,
+) -> DepthMap {
+    let [nx, ny, _] = grid.dims;
+    let (mut depth, mut intensity) = (vec![f32::NAN; nx * ny], vec![0.0f32; nx * ny]);
+    for iy in 0..ny {
+        for ix in 0..nx {
+            let c = grid.center(ix, iy, 0);
+            let origin = frame.to_world(Vec3::new(c.x, c.y, 1e-4));
+            if let Some(hit) = geometry.intersect(origin, frame.n) {
+                if matches!(hit.kind, crate::geometry::SurfaceKind::Hidden { .. }) {
+                    depth[iy * nx + ix] = hit.t + 1e-4;
+                    intensity[iy * nx + ix] = 1.0;
+                }
+            }
+        }
+    }
+    DepthMap {
+        depth,
+        intensity,
+        nx,
+        ny,
+    }
+}

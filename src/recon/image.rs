@@ -7,7 +7,9 @@
 //!   view `max_y V(x, y, z)` (`+x` left as well, depth growing downward from the wall at
 //!   the top);
 //!   the value shown is `max(V, 0) / max V` (linear);
-//! - [`write_depth_png`]: the depth map, near = dark, far = bright, black where empty.
+//! - [`write_depth_png`]: the depth map, near = dark, far = bright, black where empty;
+//! - [`write_comparison_png`]: the front projection and several depth maps on one
+//!   depth scale (a backprojection next to a fitted surface).
 //!
 //! Each panel is upscaled by whole pixels to about 256 pixels on its longer side.
 
@@ -25,6 +27,12 @@ struct Panel {
 
 /// Writes the front and top maximum-intensity projections of `volume` to `path`.
 pub fn write_volume_png(path: &Path, volume: &Volume) -> Result<()> {
+    let (front, top) = volume_panels(path, volume)?;
+    write_panels(path, &[front, top])
+}
+
+/// The front and top maximum-intensity projections of `volume`.
+fn volume_panels(path: &Path, volume: &Volume) -> Result<(Panel, Panel)> {
     let [nx, ny, nz] = volume.grid.dims;
     if volume.data.len() != nx * ny * nz {
         return Err(Error::Invalid(format!(
@@ -71,11 +79,38 @@ pub fn write_volume_png(path: &Path, volume: &Volume) -> Result<()> {
             })
             .collect(),
     };
-    write_panels(path, &[front, top])
+    Ok((front, top))
 }
 
 /// Writes the depth map of `dm` to `path`, seen from the wall (`+y` up, `+x` left).
 pub fn write_depth_png(path: &Path, dm: &DepthMap) -> Result<()> {
+    let (lo, hi) = depth_range(&[dm]);
+    write_panels(path, &[depth_panel(path, dm, lo, hi)?])
+}
+
+/// Writes the front maximum-intensity projection of `volume` and the depth maps
+/// `depths` side by side, the depth maps on one shared scale (near = dark): e.g. a
+/// backprojection's depth next to a fitted surface's.
+pub fn write_comparison_png(path: &Path, volume: &Volume, depths: &[&DepthMap]) -> Result<()> {
+    let (lo, hi) = depth_range(depths);
+    let mut panels = vec![volume_panels(path, volume)?.0];
+    for dm in depths {
+        panels.push(depth_panel(path, dm, lo, hi)?);
+    }
+    write_panels(path, &panels)
+}
+
+/// The finite depths' `(min, max)` over all maps.
+fn depth_range(depths: &[&DepthMap]) -> (f32, f32) {
+    depths
+        .iter()
+        .flat_map(|dm| dm.depth.iter())
+        .filter(|v| v.is_finite())
+        .fold((f32::MAX, f32::MIN), |(l, h), &v| (l.min(v), h.max(v)))
+}
+
+/// A depth map as a panel seen from the wall, `lo..hi` mapped to `0.15..1`.
+fn depth_panel(path: &Path, dm: &DepthMap, lo: f32, hi: f32) -> Result<Panel> {
     let (nx, ny) = (dm.nx, dm.ny);
     if dm.depth.len() != nx * ny || nx == 0 || ny == 0 {
         return Err(Error::Invalid(format!(
@@ -84,11 +119,6 @@ pub fn write_depth_png(path: &Path, dm: &DepthMap) -> Result<()> {
             dm.depth.len()
         )));
     }
-    let (lo, hi) = dm
-        .depth
-        .iter()
-        .filter(|v| v.is_finite())
-        .fold((f32::MAX, f32::MIN), |(l, h), &v| (l.min(v), h.max(v)));
     let span = (hi - lo).max(1e-6);
     let v = (0..ny)
         .rev()
@@ -103,7 +133,7 @@ pub fn write_depth_png(path: &Path, dm: &DepthMap) -> Result<()> {
             })
         })
         .collect();
-    write_panels(path, &[Panel { w: nx, h: ny, v }])
+    Ok(Panel { w: nx, h: ny, v })
 }
 
 /// Lays the panels out left to right with a 4-pixel gap, each upscaled by the largest

@@ -55,8 +55,8 @@ mod depth;
 mod image;
 
 pub use backprojection::{backproject, backproject_with, downsample_time, zero_bins_before};
-pub use depth::{depth_map, depth_map_mesh, DepthMap, MeshOptions};
-pub use image::{write_depth_png, write_volume_png};
+pub use depth::{depth_map, depth_map_mesh, surface_depth_map, DepthMap, MeshOptions};
+pub use image::{write_comparison_png, write_depth_png, write_volume_png};
 
 use crate::error::{Error, Result};
 use crate::io::lct::LctCapture;

@@ -1,0 +1,91 @@
+//! The fit's link to the filtered backprojection (`crate::recon`): the backprojection
+//! initial mesh, and `OUTDIR/reconstruction.png`, which puts the fitted surface next to
+//! a backprojection of the same measurement.
+//!
+//! Both use one backprojection: the measurement's bins from the first fitted one on
+//! (residual direct light left out), time blurred by one bin, on a voxel grid over the
+//! scan rectangle (at most 64 x 64 columns) between the depths the fitted bins can see.
+//! Its depth map keeps the columns whose peak is at least [`DEPTH_THRESHOLD`] of the
+//! volume's maximum (`recon::depth_map`).
+//!
+//! The picture has three panels, all seen from the wall (`+x` to the left, so a letter
+//! facing the wall reads correctly): the backprojection's front maximum-intensity
+//! projection, its depth map, and the fitted surface's depth map (`recon::
+//! surface_depth_map`: the first hidden surface along the wall normal from each column)
+//! on the same depth scale, near dark and far bright.
+
+use super::objective::hidden_object;
+use crate::error::Result;
+use crate::geometry::SceneGeometry;
+use crate::recon::{
+    backproject_with, depth_map, depth_map_mesh, surface_depth_map, write_comparison_png,
+    BackprojectOptions, DepthMap, MeshOptions, Volume, VoxelGrid, WallFrame,
+};
+use crate::scene::Scene;
+use optim::Mesh;
+use std::path::Path;
+
+/// Columns whose backprojected peak is below this fraction of the maximum are empty.
+pub const DEPTH_THRESHOLD: f32 = 0.3;
+
+/// The backprojection of the module doc on `[nx, ny, nz]` voxels; `first_bin` is the
+/// first bin of each row the fit uses (the measurement is zero before it).
+fn backprojection(
+    scene: &Scene,
+    measured: &[f32],
+    first_bin: usize,
+    dims: [usize; 3],
+) -> Result<(Volume, DepthMap)> {
+    let mut grid = VoxelGrid::for_scene(scene, dims)?;
+    if !scene.account_first_and_last_bounces && first_bin > 0 {
+        let z = 0.5 * (scene.film.start_opl + first_bin as f32 * scene.film.bin_width_opl);
+        if z < grid.max.z {
+            grid = VoxelGrid::over_scan(scene, z.max(grid.min.z), grid.max.z, dims)?;
+        }
+    }
+    let opts = BackprojectOptions {
+        time_sigma_opl: scene.film.bin_width_opl,
+        ..BackprojectOptions::default()
+    };
+    let volume = backproject_with(scene, measured, &grid, &opts)?;
+    let depth = depth_map(&volume, DEPTH_THRESHOLD)?;
+    Ok((volume, depth))
+}
+
+/// The initial mesh of `Init::Backprojection`: the wall-facing height field over the
+/// filled columns of a 32 x 32 x 64 backprojection's depth map.
+pub fn backprojection_mesh(scene: &Scene, measured: &[f32], first_bin: usize) -> Result<Mesh> {
+    let (volume, depth) = backprojection(scene, measured, first_bin, [32, 32, 64])?;
+    let m = depth_map_mesh(
+        &depth,
+        &volume.grid,
+        &WallFrame::of(scene),
+        &MeshOptions {
+            smooth_iterations: 2,
+        },
+    )?;
+    Ok(super::fit_mesh(&m))
+}
+
+/// Writes the picture of the module doc to `path`.
+pub fn write_reconstruction_png(
+    path: &Path,
+    scene: &Scene,
+    measured: &[f32],
+    first_bin: usize,
+    fitted: &Mesh,
+) -> Result<()> {
+    let dims = [
+        (scene.scan.nx as usize).clamp(1, 64),
+        (scene.scan.ny as usize).clamp(1, 64),
+        128,
+    ];
+    let (volume, fbp_depth) = backprojection(scene, measured, first_bin, dims)?;
+    let with_fit = Scene {
+        objects: vec![hidden_object(fitted, 1.0, true)],
+        ..scene.clone()
+    };
+    let geometry = SceneGeometry::build(&with_fit);
+    let fit_depth = surface_depth_map(&geometry, &volume.grid, &WallFrame::of(scene));
+    write_comparison_png(path, &volume, &[&fbp_depth, &fit_depth])
+}

@@ -2,7 +2,10 @@
 //! scan area, at the depth the measurement's first strong returns imply.
 //!
 //! Depth: the OPL `τ₅₀` at which the transient summed over all scan points first reaches
-//! half its maximum; a hidden point at distance `d` straight in front of a confocal scan
+//! half its maximum above the background (the median of the summed transient over the
+//! bins the fit uses, those not zeroed: real captures have a floor of dark counts and
+//! ambient light, in the LCT `diffuse_s` capture about as strong as the signal, and the
+//! signal fills few bins); a hidden point at distance `d` straight in front of a confocal scan
 //! point returns at `τ = 2d`, so `d ≈ τ₅₀ / 2` (for single capture `τ ≈ d_l + d_s`, the
 //! same to first order). The first/last legs are removed when the scene counts them.
 
@@ -20,11 +23,14 @@ pub fn depth_from_data(scene: &Scene, measured: &[f32]) -> Option<f32> {
             *t += *v as f64;
         }
     }
-    let max = total.iter().cloned().fold(0.0, f64::max);
+    let mut used: Vec<f64> = total.iter().copied().filter(|&v| v != 0.0).collect();
+    used.sort_by(f64::total_cmp);
+    let background = used.get(used.len() / 2).copied().unwrap_or(0.0).max(0.0);
+    let max = total.iter().cloned().fold(0.0, f64::max) - background;
     if max <= 0.0 {
         return None;
     }
-    let b = total.iter().position(|&v| v >= 0.5 * max)?;
+    let b = total.iter().position(|&v| v - background >= 0.5 * max)?;
     let mut opl = scene.film.start_opl + (b as f32 + 0.5) * scene.film.bin_width_opl;
     if scene.account_first_and_last_bounces {
         let (x_l, x_s) = scene.measurement_points(0);
@@ -84,6 +90,25 @@ pub fn sphere(scene: &Scene, depth: f32, radius: f32, level: u32) -> Mesh {
 mod tests {
     use super::*;
     use crate::scene::default::default_scene;
+
+    #[test]
+    fn depth_ignores_a_constant_background() {
+        let mut scene = default_scene().unwrap();
+        scene.scan.nx = 2;
+        scene.scan.ny = 1;
+        scene.film.temporal_bins = 100;
+        scene.film.start_opl = 0.0;
+        scene.film.bin_width_opl = 0.01;
+        scene.account_first_and_last_bounces = false;
+        // Bins 0..10 zeroed (ignored), background 3 from there, a return of 2 at bin 60
+        // (below half the maximum: a threshold on the raw sum would stop at bin 10).
+        let mut row = vec![0.0f32; 100];
+        row[10..].fill(3.0);
+        row[60] += 2.0;
+        let data = [row.clone(), row].concat();
+        let d = depth_from_data(&scene, &data).unwrap();
+        assert!((d - 0.5 * 0.605).abs() < 1e-4, "{d}");
+    }
 
     #[test]
     fn plane_faces_the_wall() {

@@ -87,8 +87,9 @@ def main():
         print(f"== {name}", flush=True)
         s = run_case(args.umbra, scene, init, out, args.iters, args.target_spp)
         print(s["stdout"], flush=True)
-        shutil.copy(os.path.join(out, "transients.png"),
-                    os.path.join(args.docs, f"{scene}-{init}_transients.png"))
+        for pic in ("transients", "reconstruction"):
+            shutil.copy(os.path.join(out, f"{pic}.png"),
+                        os.path.join(args.docs, f"{scene}-{init}_{pic}.png"))
         results.append((name, out, s))
     plot_losses(results, os.path.join(args.docs, "recovery_loss.png"))
     lines = [

@@ -8,11 +8,12 @@
 //! Its depth map keeps the columns whose peak is at least [`DEPTH_THRESHOLD`] of the
 //! volume's maximum (`recon::depth_map`).
 //!
-//! The picture has three panels, all seen from the wall (`+x` to the left, so a letter
+//! The picture has four panels, all seen from the wall (`+x` to the left, so a letter
 //! facing the wall reads correctly): the backprojection's front maximum-intensity
-//! projection, its depth map, and the fitted surface's depth map (`recon::
-//! surface_depth_map`: the first hidden surface along the wall normal from each column)
-//! on the same depth scale, near dark and far bright.
+//! projection; the fitted surface's albedo (the first hidden surface along the wall
+//! normal from each column, `recon::surface_depth_map`; all faces, dark ones too, since
+//! albedo is what cuts a letter out of a plane); the backprojection's depth map and the
+//! fitted surface's, on one depth scale, near dark and far bright.
 
 use super::objective::hidden_object;
 use crate::error::Result;
@@ -67,7 +68,8 @@ pub fn backprojection_mesh(scene: &Scene, measured: &[f32], first_bin: usize) ->
     Ok(super::fit_mesh(&m))
 }
 
-/// Writes the picture of the module doc to `path`.
+/// Writes the picture of the module doc to `path`; `fitted` is the whole fitted mesh
+/// with its per-vertex albedo.
 pub fn write_reconstruction_png(
     path: &Path,
     scene: &Scene,
@@ -87,5 +89,5 @@ pub fn write_reconstruction_png(
     };
     let geometry = SceneGeometry::build(&with_fit);
     let fit_depth = surface_depth_map(&geometry, &volume.grid, &WallFrame::of(scene));
-    write_comparison_png(path, &volume, &[&fbp_depth, &fit_depth])
+    write_comparison_png(path, &volume, &fit_depth, &[&fbp_depth, &fit_depth])
 }

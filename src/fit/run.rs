@@ -275,7 +275,7 @@ pub fn fit(
     let (render, final_loss, intensity) = objective.render(&outcome.mesh)?;
     files.push(write_transients(out, &base, measured, &render, intensity)?);
     let picture = out.join("reconstruction.png");
-    write_reconstruction_png(&picture, &base, measured, first, &surface)?;
+    write_reconstruction_png(&picture, &base, measured, first, &outcome.mesh)?;
     files.push(picture);
     Ok(FitReport {
         mesh: surface,

@@ -227,7 +227,7 @@ fn smooth(dm: &DepthMap, iterations: usize) -> Vec<f32> {
 }
 /// The depth map of the hidden surfaces of `geometry` over the columns of `grid`: the
 /// distance (m) from the wall along its normal to the first hidden surface, NaN where
-/// the column's ray hits none (intensity 1 on a hit, 0 otherwise). The same picture as
+/// the column's ray hits none; the intensity is the albedo at the hit (0 where none). The same picture as
 /// [`depth_map`] for a surface instead of a volume, so the two compare pixel by pixel.
 pub fn surface_depth_map(
     geometry: &crate::geometry::SceneGeometry,
@@ -243,7 +243,8 @@ pub fn surface_depth_map(
             if let Some(hit) = geometry.intersect(origin, frame.n) {
                 if matches!(hit.kind, crate::geometry::SurfaceKind::Hidden { .. }) {
                     depth[iy * nx + ix] = hit.t + 1e-4;
-                    intensity[iy * nx + ix] = 1.0;
+                    intensity[iy * nx + ix] =
+                        geometry.hidden[hit.flat as usize].albedo_at(hit.bary);
                 }
             }
         }

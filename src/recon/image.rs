@@ -88,16 +88,43 @@ pub fn write_depth_png(path: &Path, dm: &DepthMap) -> Result<()> {
     write_panels(path, &[depth_panel(path, dm, lo, hi)?])
 }
 
-/// Writes the front maximum-intensity projection of `volume` and the depth maps
-/// `depths` side by side, the depth maps on one shared scale (near = dark): e.g. a
-/// backprojection's depth next to a fitted surface's.
-pub fn write_comparison_png(path: &Path, volume: &Volume, depths: &[&DepthMap]) -> Result<()> {
+/// Writes, side by side: the front maximum-intensity projection of `volume`, the
+/// intensity of `surface` (seen from the wall, relative to its maximum), then the depth
+/// maps `depths` on one shared scale (near = dark): e.g. a backprojection next to a
+/// fitted surface's albedo and both depth maps.
+pub fn write_comparison_png(
+    path: &Path,
+    volume: &Volume,
+    surface: &DepthMap,
+    depths: &[&DepthMap],
+) -> Result<()> {
     let (lo, hi) = depth_range(depths);
-    let mut panels = vec![volume_panels(path, volume)?.0];
+    let mut panels = vec![
+        volume_panels(path, volume)?.0,
+        intensity_panel(path, surface)?,
+    ];
     for dm in depths {
         panels.push(depth_panel(path, dm, lo, hi)?);
     }
     write_panels(path, &panels)
+}
+
+/// A depth map's intensity as a panel seen from the wall, relative to its maximum.
+fn intensity_panel(path: &Path, dm: &DepthMap) -> Result<Panel> {
+    let max = dm
+        .intensity
+        .iter()
+        .copied()
+        .fold(0.0f32, f32::max)
+        .max(1e-12);
+    let mut p = depth_panel(path, dm, 0.0, 1.0)?;
+    let (nx, ny) = (dm.nx, dm.ny);
+    p.v = (0..ny)
+        .rev()
+        .flat_map(|iy| (0..nx).rev().map(move |ix| (iy, ix)))
+        .map(|(iy, ix)| dm.intensity[iy * nx + ix].max(0.0) / max)
+        .collect();
+    Ok(p)
 }
 
 /// The finite depths' `(min, max)` over all maps.

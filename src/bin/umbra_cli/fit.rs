@@ -208,7 +208,7 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         .map_err(|e| Error::Invalid(format!("--bin {},{}: {e}", bin.0, bin.1)))?;
         binned.objects = scene.objects.clone();
         eprintln!(
-            "umbra fit: measurement binned {},{}: {} x {} scan points, {} bins of {} mm",
+            "umbra fit: measurement binned {},{}: {} x {} scan points, {} bins of {:.2} mm",
             bin.0,
             bin.1,
             binned.scan.nx,

@@ -18,6 +18,7 @@ from drjit_reference import (  # noqa: F401  (re-exported for the test)
     Result, SCENES, mc3, setup, tri3,
 )
 from adjoint_pattern import adjoint_pattern  # noqa: F401  (the test uses R.adjoint_pattern)
+from icosphere import icosphere
 
 # --------------------------------------------------------------------------------------
 # Scenes and comparison
@@ -35,29 +36,8 @@ OBJECTS = {
 
 def icosphere_obj(path: Path, radius: float = 0.12, subdivisions: int = 1) -> None:
     """An icosphere OBJ (outward winding normals, centred at the origin)."""
-    g = (1 + 5 ** 0.5) / 2
-    V = [(-1, g, 0), (1, g, 0), (-1, -g, 0), (1, -g, 0), (0, -1, g), (0, 1, g), (0, -1, -g),
-         (0, 1, -g), (g, 0, -1), (g, 0, 1), (-g, 0, -1), (-g, 0, 1)]
-    V = [np.array(v, float) / np.linalg.norm(v) for v in V]
-    F = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4),
-         (11, 10, 2), (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8),
-         (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1)]
-    for _ in range(subdivisions):
-        mid, F2 = {}, []
-
-        def midpoint(i, j):
-            key = (min(i, j), max(i, j))
-            if key not in mid:
-                v = V[i] + V[j]
-                V.append(v / np.linalg.norm(v))
-                mid[key] = len(V) - 1
-            return mid[key]
-
-        for a, b, c in F:
-            ab, bc, ca = midpoint(a, b), midpoint(b, c), midpoint(c, a)
-            F2 += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
-        F = F2
-    P = np.array(V) * radius
+    V, F = icosphere(subdivisions)
+    P = V * radius
     for a, b, c in F:
         assert np.cross(P[b] - P[a], P[c] - P[a]) @ (P[a] + P[b] + P[c]) > 0
     with open(path, "w") as f:

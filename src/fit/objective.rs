@@ -67,8 +67,9 @@ impl Moments {
 
 impl Intensity {
     /// The non-negative least-squares `(s, b)` of the module doc: the unconstrained
-    /// solution if it is feasible, else the best of the solutions on the boundary
-    /// (`b = 0`, `s = 0`, both 0).
+    /// solution if it is feasible, else the better of the two edge solutions (`b = 0`
+    /// with the best `s`, `s = 0` with the best `b`; the corner `(0, 0)` lies on both
+    /// edges, so it is never better).
     fn fit(m: &Moments, model: IntensityModel) -> Intensity {
         let s_only = if model.scale && m.hh > 0.0 {
             (m.hm / m.hh).max(0.0)

@@ -6,8 +6,8 @@
 //! - `loss.csv` and `loss.png`: the loss per iteration (data term and total), stage
 //!   boundaries marked;
 //! - `reconstruction.png`: a filtered backprojection of the measurement (front
-//!   projection and depth map) next to the fitted surface's depth map
-//!   (`reconstruction` module doc);
+//!   projection and depth map) next to the fitted surface's albedo and depth map
+//!   (`reconstruction` module doc; a failure to draw it is a warning, not an error);
 //! - `transients.png`: measured and fitted transients side by side (streak images of
 //!   the middle scan row, the fitted one times the fitted scale), and their difference;
 //! - `checkpoint/`: the resumable state (see `optim::fit`).
@@ -74,8 +74,8 @@ pub struct FitReport {
     pub full_mesh: Mesh,
     pub history: Vec<LossRecord>,
     pub seconds: f64,
-    /// The loss `‖s H − M‖² / ‖M‖²` of the final mesh at full resolution (its square
-    /// root is the relative L2 error).
+    /// The loss `‖s H + b − M‖² / ‖M‖²` over the fitted bins of the final mesh at full
+    /// resolution (its square root is the relative L2 error).
     pub final_loss: f64,
     /// The final mesh's intensity scale and background.
     pub intensity: Intensity,
@@ -274,9 +274,12 @@ pub fn fit(
     let objective = factory.build(&full)?;
     let (render, final_loss, intensity) = objective.render(&outcome.mesh)?;
     files.push(write_transients(out, &base, measured, &render, intensity)?);
+    // The picture is a by-product: the fit's results must not be lost over it.
     let picture = out.join("reconstruction.png");
-    write_reconstruction_png(&picture, &base, measured, first, &outcome.mesh)?;
-    files.push(picture);
+    match write_reconstruction_png(&picture, &base, measured, first, &outcome.mesh) {
+        Ok(()) => files.push(picture),
+        Err(e) => eprintln!("umbra fit: warning: {} not written: {e}", picture.display()),
+    }
     Ok(FitReport {
         mesh: surface,
         full_mesh: outcome.mesh,
@@ -347,8 +350,9 @@ fn write_loss(out: &Path, history: &[LossRecord]) -> Result<Vec<PathBuf>> {
 }
 
 /// Streak images (scan x along the middle row, time) of the measurement, the fit (times
-/// the scale, plus the background) and their absolute difference, over the bins where the measurement has signal (above
-/// 1 % of its peak, with a margin), at most 140 columns.
+/// the scale, plus the background) and their absolute difference, over the bins where
+/// the measurement has signal (above 1 % of its peak, with a margin), at most 140
+/// columns.
 fn write_transients(
     out: &Path,
     scene: &Scene,

@@ -225,10 +225,12 @@ fn smooth(dm: &DepthMap, iterations: usize) -> Vec<f32> {
     }
     d
 }
+
 /// The depth map of the hidden surfaces of `geometry` over the columns of `grid`: the
 /// distance (m) from the wall along its normal to the first hidden surface, NaN where
-/// the column's ray hits none; the intensity is the albedo at the hit (0 where none). The same picture as
-/// [`depth_map`] for a surface instead of a volume, so the two compare pixel by pixel.
+/// the column's ray hits none; the intensity is the albedo at the hit (0 where none).
+/// The same picture as [`depth_map`] for a surface instead of a volume, so the two
+/// compare pixel by pixel.
 pub fn surface_depth_map(
     geometry: &crate::geometry::SceneGeometry,
     grid: &VoxelGrid,

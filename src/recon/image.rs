@@ -117,14 +117,7 @@ fn intensity_panel(path: &Path, dm: &DepthMap) -> Result<Panel> {
         .copied()
         .fold(0.0f32, f32::max)
         .max(1e-12);
-    let mut p = depth_panel(path, dm, 0.0, 1.0)?;
-    let (nx, ny) = (dm.nx, dm.ny);
-    p.v = (0..ny)
-        .rev()
-        .flat_map(|iy| (0..nx).rev().map(move |ix| (iy, ix)))
-        .map(|(iy, ix)| dm.intensity[iy * nx + ix].max(0.0) / max)
-        .collect();
-    Ok(p)
+    map_panel(path, dm, |_, intensity| intensity.max(0.0) / max)
 }
 
 /// The finite depths' `(min, max)` over all maps.
@@ -138,27 +131,31 @@ fn depth_range(depths: &[&DepthMap]) -> (f32, f32) {
 
 /// A depth map as a panel seen from the wall, `lo..hi` mapped to `0.15..1`.
 fn depth_panel(path: &Path, dm: &DepthMap, lo: f32, hi: f32) -> Result<Panel> {
+    let span = (hi - lo).max(1e-6);
+    map_panel(path, dm, |d, _| {
+        if d.is_finite() {
+            0.15 + 0.85 * (d - lo) / span
+        } else {
+            f32::NAN
+        }
+    })
+}
+
+/// `value(depth, intensity)` of each column of `dm`, seen from the wall (`+y` up, `+x`
+/// left).
+fn map_panel(path: &Path, dm: &DepthMap, value: impl Fn(f32, f32) -> f32) -> Result<Panel> {
     let (nx, ny) = (dm.nx, dm.ny);
-    if dm.depth.len() != nx * ny || nx == 0 || ny == 0 {
+    if dm.depth.len() != nx * ny || dm.intensity.len() != nx * ny || nx == 0 || ny == 0 {
         return Err(Error::Invalid(format!(
             "{}: a depth map of {} values is not {nx} x {ny}",
             path.display(),
             dm.depth.len()
         )));
     }
-    let span = (hi - lo).max(1e-6);
     let v = (0..ny)
         .rev()
-        .flat_map(|iy| {
-            (0..nx).rev().map(move |ix| {
-                let d = dm.depth[iy * nx + ix];
-                if d.is_finite() {
-                    0.15 + 0.85 * (d - lo) / span
-                } else {
-                    f32::NAN
-                }
-            })
-        })
+        .flat_map(|iy| (0..nx).rev().map(move |ix| iy * nx + ix))
+        .map(|i| value(dm.depth[i], dm.intensity[i]))
         .collect();
     Ok(Panel { w: nx, h: ny, v })
 }

@@ -14,6 +14,8 @@ import pytest
 import umbra
 from conftest import VALIDATION, require_umbra
 
+import mtutil  # noqa: E402  (python/validation, on the path via conftest)
+
 T_XML = VALIDATION / "scenes" / "T.xml"
 
 
@@ -83,17 +85,6 @@ def test_errors_name_the_file():
         umbra.render(small_scene(), model="bogus")
 
 
-def _lookat(origin, target, up):
-    o, t, u = (np.asarray(x, float) for x in (origin, target, up))
-    d = (t - o) / np.linalg.norm(t - o)
-    left = np.cross(u, d)
-    left /= np.linalg.norm(left)
-    new_up = np.cross(d, left)
-    m = np.eye(4)
-    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = left, new_up, d, o
-    return m
-
-
 def _rot_y_then_translate(angle_deg, t):
     a = np.radians(angle_deg)
     m = np.eye(4)
@@ -115,7 +106,7 @@ def test_dict_scene_matches_its_xml():
                        "account_first_and_last_bounces": False, "capture_type": "single",
                        "temporal_filter": "box"},
         "laser": {"type": "projector", "irradiance": rgb(1.0), "fov": 0.2,
-                  "to_world": _lookat([0.4, -0.3, 0.5], [0.1, 0.1, 0.0], [0, 1, 0])},
+                  "to_world": mtutil.lookat([0.4, -0.3, 0.5], [0.1, 0.1, 0.0], [0, 1, 0])},
         "T": {"type": "obj", "filename": "T.obj", "face_normals": True,
               "to_world": _rot_y_then_translate(20.0, [0.05, -0.02, 0.95]),
               "bsdf": {"type": "diffuse", "reflectance": rgb(0.7)}},

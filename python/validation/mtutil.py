@@ -13,6 +13,20 @@ import os
 _MI = None
 
 
+def lookat(origin, target, up=(0.0, 1.0, 0.0)):
+    """A Mitsuba `to_world` 4x4 matrix (numpy) for an emitter at `origin` looking at
+    `target` (Mitsuba's look-at convention: +z forward, +x left)."""
+    import numpy as np
+
+    o, t, u = (np.asarray(x, float) for x in (origin, target, up))
+    d = (t - o) / np.linalg.norm(t - o)
+    left = np.cross(u, d)
+    left /= np.linalg.norm(left)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = left, np.cross(d, left), d, o
+    return m
+
+
 def find_libllvm() -> str:
     """Path of an LLVM >= 19 shared library for Dr.Jit (LLVM 14 is too old, 15/16 crash)."""
     env = os.environ.get("DRJIT_LIBLLVM_PATH")

@@ -6,9 +6,11 @@
 //! Each iteration evaluates the new `θ` before accepting it (the cost argmin records
 //! belongs to the parameter it records). A step whose evaluation fails or is not
 //! finite (a NaN vertex, a render error) is rejected: `θ` stays, `η` halves, and the
-//! step is retried, up to [`Adam::max_retries`] times. The moments are not updated by
+//! step is retried, up to [`Adam::max_retries`] times. Each candidate is projected onto
+//! the feasible set first ([`Project`]: albedo in its bounds; projected gradient descent). The moments are not updated by
 //! a rejected step. The whole struct serialises, so checkpoints resume exactly.
 
+use crate::problem::Project;
 use argmin::core::{CostFunction, Error, Gradient, IterState, Problem, Solver, State as _, KV};
 use serde::{Deserialize, Serialize};
 
@@ -46,7 +48,8 @@ impl Adam {
     }
 }
 
-fn evaluate<O>(problem: &mut Problem<O>, theta: &Vec<f64>) -> Option<(f64, Vec<f64>)>
+/// Cost and gradient at `theta`, or `None` when either fails or is not finite.
+pub(crate) fn evaluate<O>(problem: &mut Problem<O>, theta: &Vec<f64>) -> Option<(f64, Vec<f64>)>
 where
     O: CostFunction<Param = Vec<f64>, Output = f64>
         + Gradient<Param = Vec<f64>, Gradient = Vec<f64>>,
@@ -59,7 +62,8 @@ where
 impl<O> Solver<O, State> for Adam
 where
     O: CostFunction<Param = Vec<f64>, Output = f64>
-        + Gradient<Param = Vec<f64>, Gradient = Vec<f64>>,
+        + Gradient<Param = Vec<f64>, Gradient = Vec<f64>>
+        + Project,
 {
     fn name(&self) -> &str {
         "Adam"
@@ -115,11 +119,14 @@ where
             .collect();
         let mut rejected_now = 0;
         loop {
-            let candidate: Vec<f64> = theta
+            let mut candidate: Vec<f64> = theta
                 .iter()
                 .zip(&direction)
                 .map(|(x, d)| x - self.lr * d)
                 .collect();
+            if let Some(p) = problem.problem.as_ref() {
+                p.project(&mut candidate);
+            }
             if let Some((cost, grad)) = evaluate(problem, &candidate) {
                 (self.m, self.v, self.t) = (m, v, t);
                 let kv = argmin::kv!("lr" => self.lr; "rejected" => rejected_now;);
@@ -156,6 +163,7 @@ mod tests {
             })
         }
     }
+    impl Project for Bowl {}
     impl Gradient for Bowl {
         type Param = Vec<f64>;
         type Gradient = Vec<f64>;

@@ -2,8 +2,8 @@
 //! remeshed between stages and everything checkpointed so a killed fit resumes where it
 //! stood and ends where an uninterrupted one does.
 //!
-//! Stage `s` runs [`Adam`] (noisy Monte Carlo gradients) or argmin's L-BFGS with a
-//! Moré–Thuente line search (the noise-free `tri3` model) on the [`MeshProblem`] of the
+//! Stage `s` runs [`Adam`] (noisy Monte Carlo gradients) or [`Lbfgs`] (projected,
+//! with a capped Armijo line search; the noise-free `tri3` model) on the [`MeshProblem`] of the
 //! stage's objective (the renderer at the stage's resolution, from the
 //! [`ObjectiveFactory`]) for `iters` iterations.
 //!
@@ -20,12 +20,11 @@
 
 use crate::adam::Adam;
 use crate::checkpoint::{write_atomic, History, LossRecord, SolverCheckpoint};
+use crate::lbfgs::Lbfgs;
 use crate::mesh::Mesh;
 use crate::problem::{Breakdown, MeshObjective, MeshProblem, ProblemSettings};
 use argmin::core::observers::{Observe, ObserverMode};
 use argmin::core::{Error, Executor, IterState, State as _, KV};
-use argmin::solver::linesearch::MoreThuenteLineSearch;
-use argmin::solver::quasinewton::LBFGS;
 use serde::{Deserialize, Serialize};
 use std::cell::RefCell;
 use std::path::{Path, PathBuf};
@@ -38,7 +37,8 @@ pub enum SolverKind {
     /// Adam, for Monte Carlo gradients.
     #[default]
     Adam,
-    /// L-BFGS with a Moré–Thuente line search, for the noise-free `tri3` model.
+    /// L-BFGS with a capped projected Armijo line search ([`Lbfgs`]), for the noise-free
+    /// `tri3` model.
     Lbfgs,
 }
 
@@ -50,7 +50,8 @@ pub struct Stage {
     pub iters: u64,
     #[serde(default)]
     pub solver: SolverKind,
-    /// Adam's step size, in the units of the parameters (m for positions).
+    /// Adam's step size, in the units of the parameters (m for positions); for L-BFGS the
+    /// largest move of any parameter in its first step (later steps: at most 20x that).
     #[serde(default = "default_lr")]
     pub lr: f64,
     /// `λ` of the large-steps parameterisation `u = (I + λL) x` (0: off).
@@ -295,15 +296,15 @@ pub fn fit(
                 (res.problem.problem, theta, rejected)
             }
             SolverKind::Lbfgs => {
-                let ls = MoreThuenteLineSearch::new();
-                let res = Executor::new(problem, LBFGS::new(ls, 7))
+                let res = Executor::new(problem, Lbfgs::new(stage.lr))
                     .configure(|s| s.param(theta0).max_iters(stage.iters))
                     .add_observer(observer, ObserverMode::Always)
                     .checkpointing(checkpoint)
                     .run()
                     .map_err(run)?;
                 let theta = res.state.best_param.clone().or(res.state.param.clone());
-                (res.problem.problem, theta, 0)
+                let rejected = res.solver.rejected;
+                (res.problem.problem, theta, rejected)
             }
         };
         let problem = problem.ok_or_else(|| stage_err("argmin lost the problem".into()))?;

@@ -7,11 +7,13 @@ pub mod adam;
 pub mod checkpoint;
 pub mod fit;
 pub mod laplacian;
+pub mod lbfgs;
 pub mod mesh;
 pub mod problem;
 pub mod remesh;
 
 pub use adam::Adam;
 pub use fit::{fit, FitError, FitOutcome, ObjectiveFactory, Schedule, SolverKind, Stage};
+pub use lbfgs::Lbfgs;
 pub use mesh::Mesh;
-pub use problem::{Evaluation, MeshObjective, MeshProblem, ProblemSettings};
+pub use problem::{Evaluation, MeshObjective, MeshProblem, ProblemSettings, Project};

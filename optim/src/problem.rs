@@ -7,7 +7,7 @@
 //! with `loss` from the renderer ([`MeshObjective`]) and the smoothness term of
 //! [`crate::laplacian`]. The gradient maps back through the parameterisation:
 //! `∂C/∂u = (I + λL)⁻¹ ∂C/∂x`, and `∂C/∂a' = κ ∂loss/∂a` inside `[0, 1]` (0 outside,
-//! where the clamp holds). Cost and gradient are separate calls in argmin; one render serves
+//! where the clamp holds; [`Project`] keeps the solvers' iterates inside). Cost and gradient are separate calls in argmin; one render serves
 //! both (the last evaluation is cached by its exact parameter vector).
 //!
 //! Deterministic: the CG solves start from fixed guesses (not the previous solution), so
@@ -232,10 +232,13 @@ impl MeshProblem {
             grad.extend(du);
         }
         if self.settings.fit_values {
+            // a = clamp(κ a', 0, 1): ∂C/∂a' = κ ∂loss/∂a inside [0, 1], 0 where the
+            // clamp holds (the solvers keep a' inside by `project`).
+            let k = self.value_scale();
             let a = &theta[3 * n..];
             grad.extend(eval.d_values.iter().zip(a).map(|(&d, &a)| {
-                if (0.0..=1.0).contains(&a) {
-                    d
+                if (0.0..=1.0).contains(&(k * a)) {
+                    k * d
                 } else {
                     0.0
                 }
@@ -256,6 +259,28 @@ impl MeshProblem {
             grad: grad.clone(),
         });
         Ok((cost, grad))
+    }
+}
+
+/// The feasible set of a problem's parameters, for projected solvers: `project` moves `θ`
+/// to the nearest feasible point (in place). The default keeps every `θ`.
+pub trait Project {
+    fn project(&self, _theta: &mut [f64]) {}
+}
+
+impl Project for MeshProblem {
+    /// Clamps the value block to `a' ∈ [0, 1/κ]` (albedo in `[0, 1]`), so a value that
+    /// reached a bound keeps a live gradient and can come back.
+    fn project(&self, theta: &mut [f64]) {
+        if self.settings.fit_values {
+            let n = self.template.vertices.len();
+            let hi = 1.0 / self.value_scale();
+            if let Some(values) = theta.get_mut(3 * n..) {
+                for a in values {
+                    *a = a.clamp(0.0, hi);
+                }
+            }
+        }
     }
 }
 

@@ -71,12 +71,13 @@ fn config(schedule: Schedule) -> FitConfig {
         spp: 8,
         intensity: umbra::fit::IntensityModel {
             scale: true,
-            background: false,
+            background: umbra::fit::Background::None,
         },
         two_sided: true,
         albedo: 0.9,
         resume: false,
         ignore_before_opl: None,
+        jitter_opl: 0.0,
     }
 }
 

@@ -18,6 +18,7 @@ use crate::scene::{FilmSpec, KernelSpec};
 #[cfg(test)]
 mod adjoint_tests;
 mod box_pulse;
+pub mod jitter;
 mod pulse;
 
 pub use box_pulse::{splat_lanes, BoxPulse, LaneRow, PulseLanes, LANES, SPLAT_PAD};

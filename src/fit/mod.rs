@@ -17,7 +17,7 @@ pub mod reconstruction;
 pub mod resolution;
 pub mod run;
 
-pub use objective::{intensity_l2, Intensity, IntensityModel, UmbraObjective};
+pub use objective::{intensity_l2, Background, Intensity, IntensityModel, UmbraObjective};
 
 use crate::geometry::mesh::TriMesh;
 

@@ -63,6 +63,8 @@ pub struct FitConfig {
     /// Leave OPLs below this (m) out of the fit (residual direct light in real captures;
     /// the LCT code zeroes its first 600 bins, 0.72 m).
     pub ignore_before_opl: Option<f32>,
+    /// Detector timing jitter `σ` (OPL, m) blurred into the render (0: none).
+    pub jitter_opl: f64,
 }
 
 /// What a fit produced.
@@ -153,6 +155,7 @@ impl Factory<'_> {
             intensity: self.cfg.intensity,
             albedo: self.cfg.albedo,
             two_sided: self.cfg.two_sided,
+            jitter_opl: self.cfg.jitter_opl,
         })
     }
 }
@@ -273,7 +276,7 @@ pub fn fit(
     };
     let objective = factory.build(&full)?;
     let (render, final_loss, intensity) = objective.render(&outcome.mesh)?;
-    files.push(write_transients(out, &base, measured, &render, intensity)?);
+    files.push(write_transients(out, &base, measured, &render, &intensity)?);
     // The picture is a by-product: the fit's results must not be lost over it.
     let picture = out.join("reconstruction.png");
     match write_reconstruction_png(&picture, &base, measured, first, &outcome.mesh) {
@@ -358,7 +361,7 @@ fn write_transients(
     scene: &Scene,
     measured: &[f32],
     render: &[f32],
-    intensity: Intensity,
+    intensity: &Intensity,
 ) -> Result<PathBuf> {
     let bins = scene.film.temporal_bins as usize;
     let (nx, ny) = (scene.scan.nx as usize, scene.scan.ny as usize);
@@ -381,19 +384,22 @@ fn write_transients(
     let span = last + 1 - first;
     let k = span.div_ceil(140).max(1);
     let cols = span / k;
-    let streak = |data: &[f32], s: f32, b: f32| -> Vec<f32> {
+    let streak = |data: &[f32], s: f32, background: &dyn Fn(usize) -> f32| -> Vec<f32> {
         let mut img = vec![0.0f32; nx * cols];
         for ix in 0..nx {
             let row = &data[(row0 + ix) * bins + first..(row0 + ix + 1) * bins];
             for c in 0..cols {
-                img[ix * cols + c] = s * row[c * k..(c + 1) * k].iter().sum::<f32>() + k as f32 * b;
+                let b: f32 = (c * k..(c + 1) * k).map(|t| background(first + t)).sum();
+                img[ix * cols + c] = s * row[c * k..(c + 1) * k].iter().sum::<f32>() + b;
             }
         }
         img
     };
     let (m, f) = (
-        streak(measured, 1.0, 0.0),
-        streak(render, intensity.scale as f32, intensity.background as f32),
+        streak(measured, 1.0, &|_| 0.0),
+        streak(render, intensity.scale as f32, &|t| {
+            intensity.background_at(t) as f32
+        }),
     );
     let d: Vec<f32> = m.iter().zip(&f).map(|(a, b)| (a - b).abs()).collect();
     let path = out.join("transients.png");

@@ -49,11 +49,18 @@ pub struct FitArgs {
     /// The measurement has Umbra's absolute scale: do not fit an intensity scale.
     #[arg(long)]
     pub known_scale: bool,
-    /// Fit a constant background (dark counts, ambient light) with the scale: `true`
-    /// (default with `--measured`) or `false` (default for the demonstration target,
-    /// which has none).
+    /// Background fitted with the scale: `none` (default for the demonstration target,
+    /// which has none), `constant` (dark counts, ambient light; default with
+    /// `--measured`) or `per-bin` (one value per time bin shared by all scan points:
+    /// also the direct light's tail; default for LCT `.mat` captures). `true` and
+    /// `false` mean `constant` and `none`.
     #[arg(long)]
-    pub background: Option<bool>,
+    pub background: Option<umbra::fit::Background>,
+    /// Detector timing jitter: blur the render along time with a Gaussian of this
+    /// standard deviation (OPL, m) before comparing it with the measurement. Default 0
+    /// (the scene's film kernel only).
+    #[arg(long)]
+    pub jitter: Option<f64>,
     /// Samples per measurement of the demonstration target (no `--measured`).
     #[arg(long, default_value_t = 4096)]
     pub target_spp: u32,
@@ -239,12 +246,17 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         spp: args.spp.max(1),
         intensity: umbra::fit::IntensityModel {
             scale: !args.known_scale,
-            background: args.background.unwrap_or(args.measured.is_some()),
+            background: args.background.unwrap_or(if args.measured.is_none() {
+                umbra::fit::Background::None
+            } else {
+                umbra::fit::Background::Constant
+            }),
         },
         two_sided: true,
         albedo: scene.objects.first().map_or(0.8, |o| o.albedo),
         resume: args.resume,
         ignore_before_opl,
+        jitter_opl: args.jitter.unwrap_or(0.0),
     };
     let total: u64 = cfg.schedule.stages.iter().map(|s| s.iters).sum();
     let bar = if args.quiet {

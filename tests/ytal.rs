@@ -49,6 +49,8 @@ fn reads_the_capture_ytal_wrote() {
     assert_eq!(m.bin_width_opl, Some(0.01));
     assert_eq!(m.start_opl, Some(1.0));
     assert_eq!(m.account_first_and_last_bounces, Some(false));
+    assert_eq!(m.laser_origin, Some(Vec3::new(0.3, 0.2, 0.3)));
+    assert_eq!(m.detector_origin, Some(Vec3::new(-0.5, 0.0, 0.25)));
     assert!(
         m.transient.data.iter().all(|v| v.is_finite()) && m.transient.data.iter().any(|&v| v > 0.0)
     );
@@ -149,12 +151,29 @@ fn write_then_read_gives_the_same_capture() {
                 ))
             }
         }
+        assert_eq!(m.laser_origin, Some(scene.laser.origin));
+        assert_eq!(m.detector_origin, Some(scene.detector.origin));
         m.check_against(&scene).unwrap();
-        let again = m.scene_for(&default_scene().unwrap()).unwrap();
+        let mut base = default_scene().unwrap();
+        base.laser.origin = Vec3::new(5.0, 5.0, 5.0);
+        base.detector.origin = Vec3::new(-5.0, 5.0, 5.0);
+        let again = m.scene_for(&base).unwrap();
         assert_eq!(
             (again.capture, again.output_shape()),
             (capture, t.shape.clone())
         );
+        // The file's laser and detector replace the base scene's.
+        assert_eq!(again.laser.origin, scene.laser.origin);
+        assert_eq!(again.detector.origin, scene.detector.origin);
+        // A scene that counts the first and last legs from elsewhere is refused, naming
+        // the field.
+        let mut moved = scene.clone();
+        moved.account_first_and_last_bounces = true;
+        moved.laser.origin += Vec3::new(0.0, 0.0, 0.5);
+        if m.account_first_and_last_bounces == Some(true) {
+            let e = m.check_against(&moved).unwrap_err().to_string();
+            assert!(e.contains("laser_xyz") && e.contains("laser.origin"), "{e}");
+        }
         // No temporary file is left beside the output.
         let leftovers: Vec<_> = std::fs::read_dir(&dir)
             .unwrap()

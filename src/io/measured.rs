@@ -61,6 +61,10 @@ pub struct Measured {
     pub start_opl: Option<f32>,
     pub bin_width_opl: Option<f32>,
     pub account_first_and_last_bounces: Option<bool>,
+    /// Where the laser and the detector sit (y-tal's `laser_xyz`, `sensor_xyz`): the
+    /// first and last legs when `account_first_and_last_bounces`.
+    pub laser_origin: Option<Vec3>,
+    pub detector_origin: Option<Vec3>,
     pub source: PathBuf,
 }
 
@@ -107,6 +111,8 @@ fn read_npy_measured(path: &Path) -> Result<Measured> {
         start_opl: None,
         bin_width_opl: None,
         account_first_and_last_bounces: None,
+        laser_origin: None,
+        detector_origin: None,
         source: path.to_path_buf(),
     })
 }
@@ -146,6 +152,8 @@ fn read_lct_measured(path: &Path) -> Result<Measured> {
         start_opl: Some(0.0),
         bin_width_opl: Some(LCT_BIN_OPL),
         account_first_and_last_bounces: Some(false),
+        laser_origin: None,
+        detector_origin: None,
         source: path.to_path_buf(),
     })
 }
@@ -277,6 +285,34 @@ impl Measured {
                 ));
             }
         }
+        if scene.account_first_and_last_bounces {
+            for (origin, field, what, theirs) in [
+                (
+                    self.laser_origin,
+                    "laser_xyz",
+                    "laser.origin",
+                    scene.laser.origin,
+                ),
+                (
+                    self.detector_origin,
+                    "sensor_xyz",
+                    "detector.origin",
+                    scene.detector.origin,
+                ),
+            ] {
+                if let Some(p) = origin {
+                    let d = p.distance(theirs);
+                    if d > GEOMETRY_TOLERANCE {
+                        return Err(self.err(
+                            field,
+                            format!(
+                                "{p}, {d:.3e} m from the scene's {what} {theirs}, and the scene counts the first and last legs"
+                            ),
+                        ));
+                    }
+                }
+            }
+        }
         if let Some(g) = &self.scan {
             self.check_grid(n.scan, g, &scene.scan, "scan")?;
         }
@@ -326,8 +362,8 @@ impl Measured {
     }
 
     /// A scene for this capture: a copy of `base` with the capture type, scan grid, laser
-    /// target, film (start, bin width, bins; the kernel is kept) and first/last-bounce flag
-    /// replaced by what the file says. The result is validated and checked against the
+    /// target, film (start, bin width, bins; the kernel is kept), first/last-bounce flag and
+    /// laser and detector origins replaced by what the file says. The result is validated and checked against the
     /// data; an exhaustive capture whose laser grid is not its sensor grid is an error
     /// (Umbra's exhaustive capture uses one grid for both).
     pub fn scene_for(&self, base: &Scene) -> Result<Scene> {
@@ -362,6 +398,12 @@ impl Measured {
         }
         if let Some(a) = self.account_first_and_last_bounces {
             scene.account_first_and_last_bounces = a;
+        }
+        if let Some(p) = self.laser_origin {
+            scene.laser.origin = p;
+        }
+        if let Some(p) = self.detector_origin {
+            scene.detector.origin = p;
         }
         let shape = &self.transient.shape;
         let bins = *shape.last().unwrap_or(&0);

@@ -9,7 +9,7 @@
 //! | `sensor_grid_xyz` | `(Sx, Sy, 3)` wall points, indexed `[x, y]` | a regular [`ScanGrid`], inferred |
 //! | `laser_grid_xyz` | `(1, 1, 3)` for one laser point, the sensor grid for confocal, `(Lx, Ly, 3)` exhaustive | capture type, laser point |
 //! | `{sensor,laser}_grid_normals`, `{sensor,laser}_grid_format` (`GridFormat`: `X_Y_3` = 2) | normals, layout | written; `N_3` grids are refused |
-//! | `sensor_xyz`, `laser_xyz` | detector and laser positions | written (the detector and laser origins) |
+//! | `sensor_xyz`, `laser_xyz` | detector and laser positions | the detector and laser origins (read and written) |
 //! | `delta_t`, `t_start` | bin width and start, m of OPL (float64 scalars) | `bin_width_opl`, `start_opl` |
 //! | `t_accounts_first_and_last_bounces` | HDF5 bool (enum int8 FALSE/TRUE) | the same flag |
 //! | `volume_format` | deprecated; `tal render` writes an empty (null) float64 | written the same way |
@@ -159,6 +159,29 @@ fn read_bool(path: &Path, file: &hdf5::File, name: &str) -> Result<Option<bool>>
             path,
             name,
             format!("holds {} values, expected one", v.len()),
+        )),
+    }
+}
+
+/// A point stored as three numbers (`laser_xyz`, `sensor_xyz`); `None` if absent or
+/// empty.
+fn read_point(path: &Path, file: &hdf5::File, name: &str) -> Result<Option<Vec3>> {
+    let Some(ds) = dataset(path, file, name)? else {
+        return Ok(None);
+    };
+    if is_null(&ds) {
+        return Ok(None);
+    }
+    let v = ds.read_raw::<f64>().map_err(|e| field_err(path, name, e))?;
+    match v.as_slice() {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => {
+            Ok(Some(Vec3::new(*x as f32, *y as f32, *z as f32)))
+        }
+        [_, _, _] => Err(field_err(path, name, "holds a non-finite coordinate")),
+        _ => Err(field_err(
+            path,
+            name,
+            format!("holds {} values, expected a point (x, y, z)", v.len()),
         )),
     }
 }
@@ -434,6 +457,8 @@ pub fn read_ytal(path: &Path) -> Result<Measured> {
             &file,
             "t_accounts_first_and_last_bounces",
         )?,
+        laser_origin: read_point(path, &file, "laser_xyz")?,
+        detector_origin: read_point(path, &file, "sensor_xyz")?,
         source: path.to_path_buf(),
     })
 }

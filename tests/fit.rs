@@ -78,6 +78,7 @@ fn config(schedule: Schedule) -> FitConfig {
         resume: false,
         ignore_before_opl: None,
         jitter_opl: 0.0,
+        time_offset_max_opl: 0.0,
     }
 }
 

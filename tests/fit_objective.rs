@@ -57,6 +57,7 @@ fn objective_gradient_matches_finite_differences_with_jitter_and_per_bin_backgro
         two_sided: true,
         first_bin: 20,
         jitter_opl: 0.04,
+        time_offset_max_opl: 0.0,
     };
     let eval = objective.evaluate(&mesh).unwrap();
     assert!(eval.loss > 1e-4, "{}", eval.loss);
@@ -96,4 +97,49 @@ fn objective_gradient_matches_finite_differences_with_jitter_and_per_bin_backgro
     }
     assert_eq!(checked, 7);
     assert!(worst < 5e-3, "worst relative error {worst:.2e}");
+}
+
+#[test]
+fn objective_finds_a_time_offset_of_the_measurement() {
+    // The measurement is the true letter's render through the jitter kernel, delayed by
+    // 1.7 cm of OPL: the objective finds the delay and explains the data exactly.
+    let mut scene = default_scene().unwrap();
+    scene.scan.nx = 6;
+    scene.scan.ny = 6;
+    scene.film.temporal_bins = 96;
+    scene.film.bin_width_opl = 0.02;
+    scene.film.kernel = KernelSpec::Box;
+    let opts = RenderOptions {
+        model: Model::Tri3,
+        ..RenderOptions::from_scene(&scene)
+    };
+    let geom = SceneGeometry::build(&scene);
+    let mut measured = Renderer::new(&scene, &geom, &opts)
+        .unwrap()
+        .render(None)
+        .unwrap()
+        .data;
+    let bins = scene.film.temporal_bins as usize;
+    umbra::film::jitter::JitterKernel::new(0.03 / 0.02, 0.017 / 0.02).apply(&mut measured, bins);
+    let mesh = umbra::fit::fit_mesh(&scene.objects[0].mesh);
+    let objective = |max: f64| UmbraObjective {
+        scene: scene.clone(),
+        measured: measured.clone(),
+        options: opts,
+        intensity: IntensityModel {
+            scale: true,
+            background: Background::Constant,
+        },
+        albedo: 0.8,
+        two_sided: true,
+        first_bin: 0,
+        jitter_opl: 0.03,
+        time_offset_max_opl: max,
+    };
+    let (_, loss, _, offset) = objective(0.05).render(&mesh).unwrap();
+    assert!((offset - 0.017).abs() < 2e-4, "offset {offset}");
+    assert!(loss < 1e-8, "loss {loss}");
+    let (_, held, _, zero) = objective(0.0).render(&mesh).unwrap();
+    assert_eq!(zero, 0.0);
+    assert!(held > 1e-2, "without the offset: {held}");
 }

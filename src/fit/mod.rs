@@ -2,6 +2,8 @@
 //!
 //! - [`objective`]: the renderer as an `optim::MeshObjective` (scale-free relative L2,
 //!   path-replay gradients);
+//! - [`time_offset`]: the comparison through the detector's jitter and an unknown
+//!   time offset;
 //! - [`resolution`]: the coarse-to-fine schedule's downsampled measurement and scene;
 //! - [`reconstruction`]: the backprojection initial mesh and the picture of the fit
 //!   next to a backprojection;
@@ -16,6 +18,7 @@ pub mod objective;
 pub mod reconstruction;
 pub mod resolution;
 pub mod run;
+pub mod time_offset;
 
 pub use objective::{intensity_l2, Background, Intensity, IntensityModel, UmbraObjective};
 

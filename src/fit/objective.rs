@@ -21,8 +21,8 @@
 //! same mesh renders the same samples (common random numbers between the cost and the
 //! gradient, and an exact resume), while every new iterate sees new noise.
 
+use super::time_offset::Comparator;
 use crate::adjoint;
-use crate::film::jitter::{blur_rows, gaussian_taps};
 use crate::geometry::{mesh::TriMesh, SceneGeometry};
 use crate::scene::{HiddenObject, Model, Scene};
 use crate::transport::{RenderOptions, Renderer};
@@ -359,6 +359,9 @@ pub struct UmbraObjective {
     /// Detector timing jitter `σ` (OPL, m) applied to the render after binning
     /// ([`crate::film::jitter`]); 0: none.
     pub jitter_opl: f64,
+    /// Search an unknown time offset `|δ| ≤` this (OPL, m; needs `jitter_opl > 0`;
+    /// [`super::time_offset`]); 0: none.
+    pub time_offset_max_opl: f64,
 }
 
 /// The first bin of the scene's film that starts at or after `ignore_before_opl` (m),
@@ -390,18 +393,28 @@ struct Forward {
     loss: f64,
     adjoint: Vec<f32>,
     intensity: Intensity,
+    time_offset_opl: f64,
 }
 
 impl UmbraObjective {
-    /// The jitter kernel's taps at this objective's bin width.
-    fn jitter_taps(&self) -> Vec<f64> {
-        gaussian_taps(self.jitter_opl / self.scene.film.bin_width_opl as f64)
+    /// How renders are compared with the measurement at this objective's resolution.
+    fn comparator(&self) -> Comparator {
+        let width = self.scene.film.bin_width_opl as f64;
+        Comparator {
+            bins: self.scene.film.temporal_bins as usize,
+            first_bin: self.first_bin,
+            intensity: self.intensity,
+            sigma_bins: self.jitter_opl / width,
+            offset_max_bins: self.time_offset_max_opl / width,
+        }
     }
 
-    /// Renders `mesh` and returns `(render, loss, (s, b))` without the gradient.
-    pub fn render(&self, mesh: &Mesh) -> crate::Result<(Vec<f32>, f64, Intensity)> {
+    /// Renders `mesh` and returns `(render, loss, (s, b), δ)` without the gradient: the
+    /// render as compared (jitter, offset, leading bins left out), and the time offset
+    /// (OPL, m).
+    pub fn render(&self, mesh: &Mesh) -> crate::Result<(Vec<f32>, f64, Intensity, f64)> {
         let f = self.forward(mesh)?;
-        Ok((f.render, f.loss, f.intensity))
+        Ok((f.render, f.loss, f.intensity, f.time_offset_opl))
     }
 
     /// The scene with `mesh` as its hidden object, its render (leading bins left out)
@@ -417,23 +430,10 @@ impl UmbraObjective {
         if opts.model != Model::Tri3 {
             opts.seed = mesh_seed(self.options.seed, mesh);
         }
-        let mut render = Renderer::new(&scene, &geom, &opts)?.render(None)?.data;
-        let taps = self.jitter_taps();
-        blur_rows(&mut render, scene.film.temporal_bins as usize, &taps);
-        zero_leading_bins(
-            &mut render,
-            scene.film.temporal_bins as usize,
-            self.first_bin,
-        );
-        let (loss, mut adjoint, intensity) = intensity_l2(
-            &render,
-            &self.measured,
-            scene.film.temporal_bins as usize,
-            self.first_bin,
-            self.intensity,
-        );
-        // The blur is symmetric: its transpose takes δH' back to the unblurred render.
-        blur_rows(&mut adjoint, scene.film.temporal_bins as usize, &taps);
+        let raw = Renderer::new(&scene, &geom, &opts)?.render(None)?.data;
+        let c = self.comparator().compare(&raw, &self.measured);
+        let (render, loss, adjoint, intensity) = (c.fitted, c.loss, c.adjoint, c.intensity);
+        let time_offset_opl = c.offset_bins * scene.film.bin_width_opl as f64;
         Ok(Forward {
             scene,
             geom,
@@ -442,6 +442,7 @@ impl UmbraObjective {
             loss,
             adjoint,
             intensity,
+            time_offset_opl,
         })
     }
 }
@@ -468,6 +469,7 @@ impl MeshObjective for UmbraObjective {
             report: vec![
                 ("scale".into(), f.intensity.scale),
                 ("background".into(), f.intensity.background),
+                ("time_offset".into(), f.time_offset_opl),
             ],
         })
     }

@@ -65,6 +65,8 @@ pub struct FitConfig {
     pub ignore_before_opl: Option<f32>,
     /// Detector timing jitter `σ` (OPL, m) blurred into the render (0: none).
     pub jitter_opl: f64,
+    /// Fit an unknown time offset `|δ| ≤` this (OPL, m; needs `jitter_opl > 0`).
+    pub time_offset_max_opl: f64,
 }
 
 /// What a fit produced.
@@ -81,6 +83,8 @@ pub struct FitReport {
     pub final_loss: f64,
     /// The final mesh's intensity scale and background.
     pub intensity: Intensity,
+    /// The fitted time offset (OPL, m; 0 unless searched).
+    pub time_offset_opl: f64,
     pub rejected_steps: u64,
     pub files: Vec<PathBuf>,
 }
@@ -156,6 +160,7 @@ impl Factory<'_> {
             albedo: self.cfg.albedo,
             two_sided: self.cfg.two_sided,
             jitter_opl: self.cfg.jitter_opl,
+            time_offset_max_opl: self.cfg.time_offset_max_opl,
         })
     }
 }
@@ -275,7 +280,7 @@ pub fn fit(
         ..last_stage.clone()
     };
     let objective = factory.build(&full)?;
-    let (render, final_loss, intensity) = objective.render(&outcome.mesh)?;
+    let (render, final_loss, intensity, time_offset_opl) = objective.render(&outcome.mesh)?;
     files.push(write_transients(out, &base, measured, &render, &intensity)?);
     // The picture is a by-product: the fit's results must not be lost over it.
     let picture = out.join("reconstruction.png");
@@ -290,6 +295,7 @@ pub fn fit(
         seconds: start.elapsed().as_secs_f64(),
         final_loss,
         intensity,
+        time_offset_opl,
         rejected_steps: outcome.rejected_steps,
         files,
     })

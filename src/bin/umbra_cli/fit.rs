@@ -61,6 +61,10 @@ pub struct FitArgs {
     /// (the scene's film kernel only).
     #[arg(long)]
     pub jitter: Option<f64>,
+    /// Fit an unknown time offset of the measurement, searched within +- this (OPL, m):
+    /// the render is shifted through the jitter kernel, so it needs `--jitter`.
+    #[arg(long)]
+    pub time_offset: Option<f64>,
     /// Samples per measurement of the demonstration target (no `--measured`).
     #[arg(long, default_value_t = 4096)]
     pub target_spp: u32,
@@ -239,6 +243,23 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
             )))
         }
     };
+    let jitter_opl = args.jitter.unwrap_or(0.0);
+    if !(jitter_opl.is_finite() && jitter_opl >= 0.0) {
+        return Err(Error::Invalid(format!(
+            "--jitter: {jitter_opl} is not a standard deviation (OPL, m, >= 0)"
+        )));
+    }
+    let time_offset_max_opl = args.time_offset.unwrap_or(0.0);
+    if !(time_offset_max_opl.is_finite() && time_offset_max_opl >= 0.0) {
+        return Err(Error::Invalid(format!(
+            "--time-offset: {time_offset_max_opl} is not a search range (OPL, m, >= 0)"
+        )));
+    }
+    if time_offset_max_opl > 0.0 && jitter_opl <= 0.0 {
+        return Err(Error::Invalid(
+            "--time-offset needs --jitter SIGMA > 0: with box bins the loss is piecewise constant in the offset (no gradient to find it by)".into(),
+        ));
+    }
     let cfg = FitConfig {
         schedule,
         init,
@@ -256,7 +277,8 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         albedo: scene.objects.first().map_or(0.8, |o| o.albedo),
         resume: args.resume,
         ignore_before_opl,
-        jitter_opl: args.jitter.unwrap_or(0.0),
+        jitter_opl,
+        time_offset_max_opl,
     };
     let total: u64 = cfg.schedule.stages.iter().map(|s| s.iters).sum();
     let bar = if args.quiet {
@@ -321,6 +343,12 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         },
         report.files.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
     );
+    if args.time_offset.is_some() {
+        println!(
+            "umbra fit: fitted time offset {:+.2} mm of OPL (the render is delayed by it)",
+            1e3 * report.time_offset_opl
+        );
+    }
     let mut summary = Summary {
         iterations: report.history.len(),
         seconds: report.seconds,
@@ -328,6 +356,7 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         relative_l2: report.final_loss.sqrt(),
         scale: report.intensity.scale,
         background: report.intensity.background,
+        time_offset: report.time_offset_opl,
         vertices: report.mesh.vertices.len(),
         faces: report.mesh.faces.len(),
         rejected_steps: report.rejected_steps,
@@ -398,6 +427,8 @@ struct Summary {
     relative_l2: f64,
     scale: f64,
     background: f64,
+    /// Fitted time offset (OPL, m; 0 unless --time-offset).
+    time_offset: f64,
     vertices: usize,
     faces: usize,
     rejected_steps: u64,

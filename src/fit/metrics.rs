@@ -121,7 +121,12 @@ pub fn chamfer(fit: &Mesh, truth: &Mesh, n: usize) -> Chamfer {
 /// object; and their share of the samples.
 fn seen_samples(mesh: &Mesh, scene: &Scene, two_sided: bool, n: usize) -> (Vec<DVec3>, f64) {
     let scene = Scene {
-        objects: vec![super::objective::hidden_object(mesh, 1.0, two_sided)],
+        objects: vec![super::objective::hidden_object(
+            mesh,
+            1.0,
+            two_sided,
+            Default::default(),
+        )],
         ..scene.clone()
     };
     let geometry = SceneGeometry::build(&scene);

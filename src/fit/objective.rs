@@ -24,7 +24,7 @@
 use super::time_offset::Comparator;
 use crate::adjoint;
 use crate::geometry::{mesh::TriMesh, SceneGeometry};
-use crate::scene::{HiddenObject, Model, Scene};
+use crate::scene::{HiddenObject, Model, Reflectance, Scene};
 use crate::transport::{RenderOptions, Renderer};
 use glam::Vec3;
 use optim::{Evaluation, Mesh, MeshObjective};
@@ -307,7 +307,12 @@ pub fn intensity_l2(
 }
 
 /// The fitted mesh as a hidden object.
-pub fn hidden_object(mesh: &Mesh, albedo: f32, two_sided: bool) -> HiddenObject {
+pub fn hidden_object(
+    mesh: &Mesh,
+    albedo: f32,
+    two_sided: bool,
+    reflectance: Reflectance,
+) -> HiddenObject {
     let positions = mesh
         .vertices
         .iter()
@@ -324,6 +329,7 @@ pub fn hidden_object(mesh: &Mesh, albedo: f32, two_sided: bool) -> HiddenObject 
         },
         albedo,
         two_sided,
+        reflectance,
     }
 }
 
@@ -353,6 +359,8 @@ pub struct UmbraObjective {
     /// Albedo of the fitted object where it has no per-vertex albedo.
     pub albedo: f32,
     pub two_sided: bool,
+    /// How the fitted surface reflects.
+    pub reflectance: Reflectance,
     /// Bins before this one are left out of the loss (zeroed in render and
     /// measurement): e.g. a capture's residual direct light.
     pub first_bin: usize,
@@ -421,7 +429,12 @@ impl UmbraObjective {
     /// and the loss with its adjoint.
     fn forward(&self, mesh: &Mesh) -> crate::Result<Forward> {
         let mut scene = self.scene.clone();
-        scene.objects = vec![hidden_object(mesh, self.albedo, self.two_sided)];
+        scene.objects = vec![hidden_object(
+            mesh,
+            self.albedo,
+            self.two_sided,
+            self.reflectance,
+        )];
         let geom = SceneGeometry::build(&scene);
         let mut opts = self.options;
         if opts.model == Model::Auto {

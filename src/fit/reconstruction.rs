@@ -84,7 +84,7 @@ pub fn write_reconstruction_png(
     ];
     let (volume, fbp_depth) = backprojection(scene, measured, first_bin, dims)?;
     let with_fit = Scene {
-        objects: vec![hidden_object(fitted, 1.0, true)],
+        objects: vec![hidden_object(fitted, 1.0, true, Default::default())],
         ..scene.clone()
     };
     let geometry = SceneGeometry::build(&with_fit);

@@ -67,6 +67,8 @@ pub struct FitConfig {
     pub jitter_opl: f64,
     /// Fit an unknown time offset `|δ| ≤` this (OPL, m; needs `jitter_opl > 0`).
     pub time_offset_max_opl: f64,
+    /// How the fitted surface reflects.
+    pub reflectance: crate::scene::Reflectance,
 }
 
 /// What a fit produced.
@@ -159,6 +161,7 @@ impl Factory<'_> {
             intensity: self.cfg.intensity,
             albedo: self.cfg.albedo,
             two_sided: self.cfg.two_sided,
+            reflectance: self.cfg.reflectance,
             jitter_opl: self.cfg.jitter_opl,
             time_offset_max_opl: self.cfg.time_offset_max_opl,
         })

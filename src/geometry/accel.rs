@@ -65,6 +65,8 @@ pub struct HiddenTri {
     /// per-vertex albedo).
     pub albedo: [f32; 3],
     pub two_sided: bool,
+    /// Retroreflective ([`crate::scene::Reflectance`]); Lambertian otherwise.
+    pub retro: bool,
 }
 
 impl HiddenTri {
@@ -122,6 +124,7 @@ impl SceneGeometry {
                         None => [o.albedo; 3],
                     },
                     two_sided: o.two_sided,
+                    retro: o.reflectance == crate::scene::Reflectance::Retroreflective,
                 });
                 tris.push(tri(a, b, c));
                 meta.push((

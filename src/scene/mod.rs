@@ -236,6 +236,31 @@ pub struct HiddenObject {
     /// Reflect on both sides. Mitsuba's `diffuse` is one-sided (black from the back);
     /// the default is one-sided to match it.
     pub two_sided: bool,
+    pub reflectance: Reflectance,
+}
+
+/// How a hidden surface reflects.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Reflectance {
+    /// Lambertian, `f = ρ/π`.
+    #[default]
+    Lambertian,
+    /// Retroreflective, in the confocal idealisation of the LCT paper (O'Toole et al.
+    /// 2018, eq. for retroreflective objects): light returns to the wall point it came
+    /// from, so the return leg's `cos θ_x cos θ_wall / r²` becomes a constant (1/m²) and
+    /// the signal falls as `1/r²` instead of `1/r⁴`. Confocal capture and `tri3` only (a
+    /// perfect retroreflector sends nothing to a sensor point away from the laser spot).
+    Retroreflective,
+}
+
+impl Reflectance {
+    pub fn parse(s: &str) -> Option<Reflectance> {
+        match s {
+            "lambertian" | "diffuse" => Some(Reflectance::Lambertian),
+            "retroreflective" => Some(Reflectance::Retroreflective),
+            _ => None,
+        }
+    }
 }
 
 /// Which sampling techniques the Monte Carlo estimators use (the seed paper's ablation).

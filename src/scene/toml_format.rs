@@ -6,7 +6,7 @@
 
 use super::{
     CaptureType, Detector, FilmSpec, HiddenObject, KernelSpec, Laser, LaserEmission, Model,
-    RelayWall, RenderSettings, ScanGrid, Scene, Techniques, Visibility,
+    Reflectance, RelayWall, RenderSettings, ScanGrid, Scene, Techniques, Visibility,
 };
 use crate::error::{Error, Result};
 use crate::geometry::mesh::TriMesh;
@@ -112,6 +112,8 @@ struct ObjectT {
     albedo: f32,
     #[serde(default)]
     two_sided: bool,
+    /// `lambertian` (default) or `retroreflective`.
+    reflectance: Option<String>,
     #[serde(default)]
     transform: TransformT,
 }
@@ -377,11 +379,21 @@ pub fn parse(
                 format!("{name} has no non-degenerate triangles"),
             ));
         }
+        let reflectance = match &o.reflectance {
+            None => Reflectance::Lambertian,
+            Some(r) => Reflectance::parse(r).ok_or_else(|| {
+                field(
+                    &format!("objects[{i}].reflectance"),
+                    format!("'{r}' is not one of lambertian, retroreflective"),
+                )
+            })?,
+        };
         objects.push(HiddenObject {
             name,
             mesh,
             albedo: o.albedo,
             two_sided: o.two_sided,
+            reflectance,
         });
     }
 

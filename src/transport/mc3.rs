@@ -36,6 +36,8 @@ pub struct TriParams<R> {
     pub v: [V3<R>; 3],
     pub albedo: [R; 3],
     pub two_sided: bool,
+    /// Retroreflective (`tri3` only; [`crate::scene::Reflectance`]).
+    pub retro: bool,
 }
 
 impl TriParams<f32> {
@@ -44,6 +46,7 @@ impl TriParams<f32> {
             v: t.v.map(|v| v.to_array()),
             albedo: t.albedo,
             two_sided: t.two_sided,
+            retro: t.retro,
         }
     }
 }
@@ -61,6 +64,7 @@ impl<T: Float, const N: usize> TriParams<Dual<T, N>> {
             v: std::array::from_fn(|i| std::array::from_fn(|k| var(t.v[i][k], 3 * i + k))),
             albedo: std::array::from_fn(|i| var(t.albedo[i], 9 + i)),
             two_sided: t.two_sided,
+            retro: t.retro,
         }
     }
 }

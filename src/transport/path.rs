@@ -177,6 +177,7 @@ impl Replay {
                     v: c.v.map(|v| v.map(|x| PathDual::c(x as f64))),
                     albedo: c.albedo.map(|a| PathDual::c(a as f64)),
                     two_sided: c.two_sided,
+                    retro: c.retro,
                 };
             }
         };

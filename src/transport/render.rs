@@ -78,6 +78,7 @@ pub struct Renderer<'a> {
 
 impl<'a> Renderer<'a> {
     pub fn new(scene: &'a Scene, geom: &'a SceneGeometry, opts: &RenderOptions) -> Result<Self> {
+        check_reflectance(scene, opts.model)?;
         let (model, auto_choice) = match opts.model {
             Model::Auto => {
                 let c = choose_model(scene, geom, opts)?;
@@ -224,6 +225,38 @@ impl<'a> Renderer<'a> {
 }
 
 /// Checks that `model` can render `scene` with its settings.
+/// Retroreflective objects exist only in the confocal `tri3` model.
+fn check_reflectance(scene: &Scene, model: Model) -> Result<()> {
+    let Some((i, o)) = scene
+        .objects
+        .iter()
+        .enumerate()
+        .find(|(_, o)| o.reflectance == crate::scene::Reflectance::Retroreflective)
+    else {
+        return Ok(());
+    };
+    let problem = if scene.capture != crate::scene::CaptureType::Confocal {
+        Some(format!(
+            "needs confocal capture (the capture is {})",
+            scene.capture.name()
+        ))
+    } else if model != Model::Tri3 {
+        Some(format!(
+            "is modelled by tri3 only (the model is {})",
+            model.name()
+        ))
+    } else {
+        None
+    };
+    match problem {
+        Some(p) => Err(Error::Invalid(format!(
+            "objects[{i}] ({}): retroreflective reflectance {p}",
+            o.name
+        ))),
+        None => Ok(()),
+    }
+}
+
 fn check_model(scene: &Scene, model: Model) -> Result<()> {
     let t = &scene.render.techniques;
     match model {

@@ -61,6 +61,8 @@ pub struct Tri3Mesh {
     pub plane: Vec<f32>,
     /// Per sub-triangle: reflects on both sides.
     pub two_sided: Vec<bool>,
+    /// Per sub-triangle: retroreflective.
+    pub retro: Vec<bool>,
     /// Per sub-triangle: area (m²).
     pub area: Vec<f32>,
     /// Per sub-triangle: centroid (curvature shift, `subtriangle` visibility).
@@ -111,7 +113,14 @@ impl Tri3Mesh {
                 tri.map(|i| m.vertex_brdf[i as usize]),
             )
         });
-        m.blocks = tri3_kernel::pack(corners, &m.normal, &m.plane, &m.area, &m.two_sided);
+        m.blocks = tri3_kernel::pack(
+            corners,
+            &m.normal,
+            &m.plane,
+            &m.area,
+            &m.two_sided,
+            &m.retro,
+        );
         m
     }
 
@@ -124,6 +133,7 @@ impl Tri3Mesh {
         apply(&mut self.normal, order);
         apply(&mut self.plane, order);
         apply(&mut self.two_sided, order);
+        apply(&mut self.retro, order);
         apply(&mut self.area, order);
         apply(&mut self.centroid, order);
         apply(&mut self.parent, order);
@@ -213,6 +223,7 @@ impl Tri3Mesh {
                     self.normal.push(t.n);
                     self.plane.push(t.n.dot((pa + pb + pc) / 3.0));
                     self.two_sided.push(t.two_sided);
+                    self.retro.push(t.retro);
                     self.area.push(0.5 * (pb - pa).cross(pc - pa).length());
                     self.centroid.push((pa + pb + pc) / 3.0);
                     self.parent.push(flat);

@@ -8,7 +8,8 @@
 //! sub-triangle at barycentrics `β` of the original triangle `(v0, v1, v2)`, OPL
 //! `τ_i = |x_l − v_i| + |v_i − x_s| + legs`, corner weight
 //! `w_i = (ρ_i/π) |p_l p_s| c_l c_s / (r_l² r_s²)²` (`p` the plane terms, `c` the wall
-//! terms), the area of the sub-triangle, the curvature shift `0.75 (τ(c) − mean τ_i)`,
+//! terms; retroreflective: `(ρ_i/π) |p_l| c_l / r_l⁴ · 1 m²`, the return leg's geometric
+//! factor replaced by a constant), the area of the sub-triangle, the curvature shift `0.75 (τ(c) − mean τ_i)`,
 //! and the pulse through the film's kernel ([`Film::triangle_bins`]).
 
 use super::mc3::{TriParams, TRI_PARAMS};
@@ -51,7 +52,12 @@ pub fn pair_bins<R: Real>(
     if !facing {
         return;
     }
-    let plane = (p_l * p_s).abs();
+    // Retroreflective (confocal): the return leg's p_s c_s / r_s⁴ is the constant 1/m².
+    let plane = if parent.retro {
+        p_l.abs()
+    } else {
+        (p_l * p_s).abs()
+    };
     let mut tau = [R::c(0.0); 3];
     let mut w = [R::c(0.0); 3];
     for i in 0..3 {
@@ -60,8 +66,12 @@ pub fn pair_bins<R: Real>(
         tau[i] = r2_l.sqrt() + r2_s.sqrt() + legs;
         let (c_l, c_s) = (-dual::dot(n_w, d_l), -dual::dot(n_w, d_s));
         if c_l.v() > 0.0 && c_s.v() > 0.0 {
-            let r4 = r2_l * r2_s;
-            w[i] = brdf[i] * plane * c_l * c_s / (r4 * r4);
+            w[i] = if parent.retro {
+                brdf[i] * plane * c_l / (r2_l * r2_l)
+            } else {
+                let r4 = r2_l * r2_s;
+                brdf[i] * plane * c_l * c_s / (r4 * r4)
+            };
         }
     }
     if w.iter().all(|w| w.v() <= 0.0) {
@@ -71,6 +81,7 @@ pub fn pair_bins<R: Real>(
         v: corners,
         albedo: brdf,
         two_sided: parent.two_sided,
+        retro: parent.retro,
     };
     let (_, area) = sub.normal_area();
     let third = 1.0 / 3.0;
@@ -89,6 +100,7 @@ impl TriParams<f64> {
             v: t.v.map(|v| v.to_array().map(f64::from)),
             albedo: t.albedo.map(f64::from),
             two_sided: t.two_sided,
+            retro: t.retro,
         }
     }
 }

@@ -13,7 +13,8 @@
 //!   `r_l cos θ_wall,l = −n_w·(x_l − v_i) =: c_l`, so
 //!   `w_i = (ρ_i/π) |p_l p_s| c_l c_s / (r_l² r_s²)²`, with `w_i = 0` where the corner is
 //!   behind the wall (`c_l ≤ 0` or `c_s ≤ 0`) and for a triangle that does not face both
-//!   wall points (`p_l, p_s > 0`, or `p_l p_s > 0` if two-sided);
+//!   wall points (`p_l, p_s > 0`, or `p_l p_s > 0` if two-sided); for a retroreflective
+//!   triangle (confocal) the return leg's `|p_s| c_s / r_s⁴` is 1 (per m²);
 //! - the curvature shift of the pulse: `0.75 (τ(c) − mean τ_i)`, `c` the centroid;
 //! - the pulse constants of [`BoxPulse`].
 
@@ -41,6 +42,8 @@ pub struct TriBlock {
     pub brdf: [Lanes; 3],
     /// 1 where the triangle reflects on both sides, else 0.
     pub two_sided: Lanes,
+    /// 1 where the triangle is retroreflective (confocal only), else 0.
+    pub retro: Lanes,
 }
 
 /// The measurement's constants, in the units the lanes use.
@@ -114,10 +117,12 @@ impl TriBlock {
                     (rs2, rs2.sqrt(), -dot(n_w, ds))
                 };
                 tau[i] = f.bins(rl, rs);
-                let r4 = rl2 * rs2;
                 let front = (cl > 0.0) & (cs > 0.0);
+                // Retroreflective: the return leg's c_s / r_s⁴ (and p_s below) is 1.
+                let retro = self.retro[j] > 0.0;
+                let back_leg = if retro { 1.0 } else { cs / (rs2 * rs2) };
                 vw[i] = if front {
-                    self.brdf[i][j] * cl * cs / (r4 * r4)
+                    self.brdf[i][j] * cl * back_leg / (rl2 * rl2)
                 } else {
                     0.0
                 };
@@ -136,7 +141,12 @@ impl TriBlock {
             } else {
                 one_sided
             };
-            let g = if facing { prod.abs() } else { 0.0 };
+            let g_plane = if self.retro[j] > 0.0 {
+                pl.abs()
+            } else {
+                prod.abs()
+            };
+            let g = if facing { g_plane } else { 0.0 };
             let w = vw.map(|v| g * v);
             // Curvature shift: the pulse's mean moves to (1/12) Σ τ_i + (3/4) τ(c).
             let (a, b, c) = (corner(0), corner(1), corner(2));
@@ -196,6 +206,7 @@ pub fn pack(
     plane: &[f32],
     area: &[f32],
     two_sided: &[bool],
+    retro: &[bool],
 ) -> Vec<TriBlock> {
     let count = corners.len();
     let mut blocks = vec![TriBlock::default(); count.div_ceil(W)];
@@ -210,12 +221,23 @@ pub fn pack(
             plane[k],
             area[k],
             two_sided[k],
+            retro[k],
         );
         last = Some((v, normal[k], plane[k]));
     }
     if let Some((v, n, d)) = last {
         for k in count..blocks.len() * W {
-            put(&mut blocks[k / W], k % W, v, [0.0; 3], n, d, 0.0, false);
+            put(
+                &mut blocks[k / W],
+                k % W,
+                v,
+                [0.0; 3],
+                n,
+                d,
+                0.0,
+                false,
+                false,
+            );
         }
     }
     blocks
@@ -231,6 +253,7 @@ fn put(
     plane: f32,
     area: f32,
     two_sided: bool,
+    retro: bool,
 ) {
     for i in 0..3 {
         for (axis, x) in v[i].to_array().into_iter().enumerate() {
@@ -240,6 +263,7 @@ fn put(
         b.n[i][j] = n[i];
     }
     b.plane[j] = plane;
+    b.retro[j] = if retro { 1.0 } else { 0.0 };
     b.area[j] = area;
     b.two_sided[j] = if two_sided { 1.0 } else { 0.0 };
 }

@@ -65,6 +65,11 @@ pub struct FitArgs {
     /// the render is shifted through the jitter kernel, so it needs `--jitter`.
     #[arg(long)]
     pub time_offset: Option<f64>,
+    /// Reflectance of the fitted surface: `lambertian` or `retroreflective` (the LCT
+    /// paper's confocal model, signal falling as 1/r^2; `tri3`, confocal only). Default:
+    /// the scene's first hidden object's, else lambertian.
+    #[arg(long)]
+    pub reflectance: Option<String>,
     /// Samples per measurement of the demonstration target (no `--measured`).
     #[arg(long, default_value_t = 4096)]
     pub target_spp: u32,
@@ -243,6 +248,17 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
             )))
         }
     };
+    let reflectance = match &args.reflectance {
+        None => scene
+            .objects
+            .first()
+            .map_or(Default::default(), |o| o.reflectance),
+        Some(r) => umbra::scene::Reflectance::parse(r).ok_or_else(|| {
+            Error::Invalid(format!(
+                "--reflectance: '{r}' is not one of lambertian, retroreflective"
+            ))
+        })?,
+    };
     let jitter_opl = args.jitter.unwrap_or(0.0);
     if !(jitter_opl.is_finite() && jitter_opl >= 0.0) {
         return Err(Error::Invalid(format!(
@@ -279,6 +295,7 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         ignore_before_opl,
         jitter_opl,
         time_offset_max_opl,
+        reflectance,
     };
     let total: u64 = cfg.schedule.stages.iter().map(|s| s.iters).sum();
     let bar = if args.quiet {

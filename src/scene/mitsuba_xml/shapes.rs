@@ -152,6 +152,7 @@ pub(super) fn shape(
         mesh,
         albedo,
         two_sided,
+        reflectance: crate::scene::Reflectance::Lambertian,
     }))
 }
 

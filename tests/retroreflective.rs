@@ -1,0 +1,165 @@
+//! The retroreflective reflectance (confocal `tri3`, the LCT paper's model): its falloff
+//! is 1/r² where a Lambertian surface's is 1/r⁴, the eight-lane kernel matches the f64
+//! reference, its adjoint matches finite differences, and scenes it cannot be rendered
+//! in are refused with the object named.
+
+mod common;
+use common::*;
+use umbra::adjoint::check;
+use umbra::geometry::SceneGeometry;
+use umbra::scene::{Model, Reflectance, Scene};
+use umbra::transport::{self, RenderOptions};
+
+const LETTER: &str = include_str!("../scenes/meshes/letter_t.obj");
+
+fn scene_of(capture: &str, obj: &str, reflectance: &str, scan: u32, z: f32) -> Scene {
+    scene(
+        &scene_toml(capture, reflectance, scan, z),
+        &[("o.obj", obj)],
+    )
+}
+
+fn scene_toml(capture: &str, reflectance: &str, scan: u32, z: f32) -> String {
+    format!(
+        r#"
+capture_type = "{capture}"
+[wall]
+size = [2.0, 2.0]
+albedo = 0.8
+[laser]
+origin = [0.3, -0.4, 1.0]
+target = [0.0, 0.0, 0.0]
+[scan]
+resolution = [{scan}, {scan}]
+size = [0.8, 0.8]
+[film]
+temporal_bins = 400
+bin_width_opl = 0.01
+start_opl = 0.5
+kernel = "gaussian"
+sigma_opl = 0.012
+[[objects]]
+file = "o.obj"
+albedo = 0.7
+reflectance = "{reflectance}"
+transform = {{ translate = [0.0123, 0.0071, {z}] }}
+[render]
+model = "tri3"
+"#
+    )
+}
+
+fn total(s: &Scene) -> f64 {
+    totals(&render(s, Model::Tri3, 1, 0)).iter().sum()
+}
+
+#[test]
+fn falloff_is_inverse_square_for_retroreflectors_and_inverse_fourth_for_lambertian() {
+    // A 1 cm square in front of a single confocal scan point, at 0.4 m and 0.8 m.
+    let patch = square_obj([-0.0123, -0.0071, 0.0], 0.01);
+    for (reflectance, expected) in [("retroreflective", 4.0), ("lambertian", 16.0)] {
+        let near = total(&scene_of("confocal", &patch, reflectance, 1, 0.4));
+        let far = total(&scene_of("confocal", &patch, reflectance, 1, 0.8));
+        let ratio = near / far;
+        println!("{reflectance}: near/far = {ratio:.4}");
+        assert!(
+            (ratio / expected - 1.0).abs() < 2e-3,
+            "{reflectance}: {ratio}"
+        );
+    }
+}
+
+#[test]
+fn kernel_matches_the_f64_reference() {
+    let s = scene_of("confocal", LETTER, "retroreflective", 4, 0.8);
+    assert_eq!(s.objects[0].reflectance, Reflectance::Retroreflective);
+    let geom = SceneGeometry::build(&s);
+    let opts = RenderOptions {
+        model: Model::Tri3,
+        ..RenderOptions::from_scene(&s)
+    };
+    let fast = transport::render(&s, &geom, &opts, None).unwrap();
+    let reference = check::primal(&s, &geom, &opts).unwrap();
+    let (mut num, mut den) = (0.0, 0.0);
+    for (a, b) in fast.data.iter().zip(&reference) {
+        num += (*a as f64 - b).powi(2);
+        den += b * b;
+    }
+    let rel = (num / den).sqrt();
+    println!("kernel vs reference: {rel:.2e}");
+    assert!(den > 0.0 && rel < 2e-5, "{rel}");
+    // And it is not the Lambertian render.
+    let lambert = render(
+        &scene_of("confocal", LETTER, "lambertian", 4, 0.8),
+        Model::Tri3,
+        1,
+        0,
+    );
+    let diff: f64 = lambert
+        .data
+        .iter()
+        .zip(&fast.data)
+        .map(|(a, b)| (*a as f64 - *b as f64).abs())
+        .sum();
+    assert!(diff > 0.1 * fast.data.iter().map(|v| *v as f64).sum::<f64>());
+}
+
+#[test]
+fn adjoint_matches_finite_differences() {
+    let s = scene_of("confocal", LETTER, "retroreflective", 3, 0.8);
+    let opts = RenderOptions {
+        model: Model::Tri3,
+        ..RenderOptions::from_scene(&s)
+    };
+    let params = check::pick_params(&s, 6, 12345);
+    let rows = check::run(&s, &opts, &params, &[1e-4]).unwrap();
+    let largest = rows.iter().map(|r| r.fd[0].1.abs()).fold(0.0, f64::max);
+    assert!(largest > 0.0);
+    for r in &rows {
+        let err = r.error(0.02 * largest);
+        println!(
+            "{}: adjoint {:.6e} fd {:.6e} rel {err:.2e}",
+            r.param, r.adjoint, r.fd[0].1
+        );
+        assert!(
+            err < 0.01,
+            "{}: {} vs {} ({err:.3e})",
+            r.param,
+            r.adjoint,
+            r.fd[0].1
+        );
+    }
+}
+
+#[test]
+fn unsupported_scenes_are_refused_naming_the_object() {
+    let single = scene_of("single", LETTER, "retroreflective", 2, 0.8);
+    let geom = SceneGeometry::build(&single);
+    let opts = RenderOptions::from_scene(&single);
+    let e = transport::render(&single, &geom, &opts, None)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("objects[0]") && e.contains("confocal"), "{e}");
+    let confocal = scene_of("confocal", LETTER, "retroreflective", 2, 0.8);
+    let geom = SceneGeometry::build(&confocal);
+    for model in [Model::Mc3, Model::Path, Model::Auto] {
+        let opts = RenderOptions {
+            model,
+            ..RenderOptions::from_scene(&confocal)
+        };
+        let e = transport::render(&confocal, &geom, &opts, None)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("objects[0]") && e.contains("tri3"),
+            "{model:?}: {e}"
+        );
+    }
+    let text = scene_toml("confocal", "mirror", 2, 0.8);
+    let bad = try_scene(&text, &[("o.obj", LETTER)]);
+    let e = bad.map(|_| ()).unwrap_err().to_string();
+    assert!(
+        e.contains("objects[0].reflectance") && e.contains("mirror"),
+        "{e}"
+    );
+}

@@ -69,7 +69,10 @@ fn gradient_matches_finite_differences_with_large_steps_smoothness_and_scaled_al
         worst = worst.max(err);
         assert!(err < 1e-5, "parameter {k}: adjoint {} vs FD {fd}", grad[k]);
     }
-    eprintln!("worst relative error {worst:.2e} over {} parameters", theta.len());
+    eprintln!(
+        "worst relative error {worst:.2e} over {} parameters",
+        theta.len()
+    );
 }
 
 #[test]

@@ -58,7 +58,7 @@ pub struct FitArgs {
     pub background: Option<umbra::fit::Background>,
     /// Detector timing jitter: blur the render along time with a Gaussian of this
     /// standard deviation (OPL, m) before comparing it with the measurement. Default 0
-    /// (the scene's film kernel only).
+    /// (the scene's film kernel only); 0.009 for LCT `.mat` captures (docs/FITTING.md).
     #[arg(long)]
     pub jitter: Option<f64>,
     /// Fit an unknown time offset of the measurement, searched within +- this (OPL, m):
@@ -96,6 +96,11 @@ pub struct FitArgs {
     #[arg(long, short)]
     pub quiet: bool,
 }
+
+
+/// Timing jitter assumed for the Stanford LCT captures (OPL σ, m): 30 ps σ (70 ps
+/// FWHM) of system response, chosen by the diffuse S fit's residual (docs/FITTING.md).
+const LCT_JITTER_OPL: f64 = 0.009;
 
 fn parse_bin(text: &str) -> std::result::Result<(u32, u32), String> {
     let parse = |t: &str| {
@@ -259,7 +264,9 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
             ))
         })?,
     };
-    let jitter_opl = args.jitter.unwrap_or(0.0);
+    let jitter_opl = args
+        .jitter
+        .unwrap_or(if is_lct { LCT_JITTER_OPL } else { 0.0 });
     if !(jitter_opl.is_finite() && jitter_opl >= 0.0) {
         return Err(Error::Invalid(format!(
             "--jitter: {jitter_opl} is not a standard deviation (OPL, m, >= 0)"
@@ -285,6 +292,8 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
             scale: !args.known_scale,
             background: args.background.unwrap_or(if args.measured.is_none() {
                 umbra::fit::Background::None
+            } else if is_lct {
+                umbra::fit::Background::PerBin
             } else {
                 umbra::fit::Background::Constant
             }),

@@ -52,6 +52,7 @@ fn stage(iters: u64, solver: SolverKind, lr: f64, time: u32, fit_albedo: bool) -
         lr,
         large_steps: 10.0,
         laplacian: 0.0,
+        fit_positions: true,
         fit_albedo,
         albedo_step: 10.0,
         remesh: None,

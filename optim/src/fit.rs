@@ -60,6 +60,10 @@ pub struct Stage {
     /// Weight of the Laplacian smoothness term.
     #[serde(default)]
     pub laplacian: f64,
+    /// Fit the vertex positions (default); `false` with `fit_albedo` fits albedo alone on
+    /// the fixed surface.
+    #[serde(default = "yes")]
+    pub fit_positions: bool,
     /// Fit per-vertex albedo too.
     #[serde(default)]
     pub fit_albedo: bool,
@@ -93,6 +97,10 @@ fn default_lr() -> f64 {
 
 fn default_albedo_step() -> f64 {
     10.0
+}
+
+fn yes() -> bool {
+    true
 }
 
 fn one() -> u32 {
@@ -251,10 +259,16 @@ pub fn fit(
             stage: index,
             message,
         };
+        if !stage.fit_positions && !stage.fit_albedo {
+            return Err(stage_err(
+                "fits nothing: set fit_positions or fit_albedo".into(),
+            ));
+        }
         let objective = factory.objective(stage, index).map_err(stage_err)?;
         let settings = ProblemSettings {
             large_steps: stage.large_steps,
             laplacian: stage.laplacian,
+            fit_positions: stage.fit_positions,
             fit_values: stage.fit_albedo,
             value_scale: stage.albedo_step,
         };

@@ -47,6 +47,9 @@ pub struct ProblemSettings {
     pub large_steps: f64,
     /// Weight `w` of the smoothness term.
     pub laplacian: f64,
+    /// Fit the vertex positions (false: they stay at the template's, e.g. an albedo-only
+    /// fit on a fixed surface, where the transient is linear in the parameters).
+    pub fit_positions: bool,
     /// Fit the per-vertex values (albedo) too.
     pub fit_values: bool,
     /// `κ`: the values enter `θ` as `a / κ`, so an optimiser step of size `η` in `θ`
@@ -124,12 +127,27 @@ impl MeshProblem {
         self.last.clone()
     }
 
+    /// Where the value block starts in `θ`.
+    fn values_at(&self) -> usize {
+        if self.settings.fit_positions {
+            3 * self.template.vertices.len()
+        } else {
+            0
+        }
+    }
+
     /// `θ` for `mesh` (same topology as the template).
     pub fn encode(&self, mesh: &Mesh) -> Vec<f64> {
         let n = mesh.vertices.len();
         let mut theta = Vec::with_capacity(4 * n);
         let mut mx = vec![0.0; n];
-        for x in split_axes(&mesh.vertices) {
+        let axes = split_axes(&mesh.vertices);
+        let positions = if self.settings.fit_positions {
+            &axes[..]
+        } else {
+            &[]
+        };
+        for x in positions {
             self.lap.apply(&x, &mut mx);
             theta.extend(
                 x.iter()
@@ -151,7 +169,7 @@ impl MeshProblem {
     /// The mesh of `θ`: solves `(I + λL) x = u` per axis.
     pub fn decode(&self, theta: &[f64]) -> Result<Mesh, String> {
         let n = self.template.vertices.len();
-        let want = n * if self.settings.fit_values { 4 } else { 3 };
+        let want = self.values_at() + if self.settings.fit_values { n } else { 0 };
         if theta.len() != want {
             return Err(format!(
                 "parameter vector has {} values, expected {want}",
@@ -161,20 +179,22 @@ impl MeshProblem {
         if let Some(i) = theta.iter().position(|v| !v.is_finite()) {
             return Err(format!("parameter {i} is not finite"));
         }
-        let axes = [0, 1, 2].map(|k| {
-            let u = &theta[k * n..(k + 1) * n];
-            let mut x = u.to_vec();
-            if self.settings.large_steps > 0.0 {
-                self.lap
-                    .solve_m(self.settings.large_steps, u, &mut x, 1e-12);
-            }
-            x
-        });
         let mut mesh = self.template.clone();
-        mesh.vertices = join_axes(&axes);
+        if self.settings.fit_positions {
+            let axes = [0, 1, 2].map(|k| {
+                let u = &theta[k * n..(k + 1) * n];
+                let mut x = u.to_vec();
+                if self.settings.large_steps > 0.0 {
+                    self.lap
+                        .solve_m(self.settings.large_steps, u, &mut x, 1e-12);
+                }
+                x
+            });
+            mesh.vertices = join_axes(&axes);
+        }
         if self.settings.fit_values {
             let k = self.value_scale();
-            mesh.vertex_values = theta[3 * n..]
+            mesh.vertex_values = theta[self.values_at()..]
                 .iter()
                 .map(|a| (k * a).clamp(0.0, 1.0))
                 .collect();
@@ -221,13 +241,19 @@ impl MeshProblem {
             0.0
         };
         let mut grad = Vec::with_capacity(theta.len());
-        for axis in split_axes(&dx) {
+        let axes = split_axes(&dx);
+        let positions = if self.settings.fit_positions {
+            &axes[..]
+        } else {
+            &[]
+        };
+        for axis in positions {
             let mut du = vec![0.0; n];
             if self.settings.large_steps > 0.0 {
                 self.lap
-                    .solve_m(self.settings.large_steps, &axis, &mut du, 1e-12);
+                    .solve_m(self.settings.large_steps, axis, &mut du, 1e-12);
             } else {
-                du = axis;
+                du.clone_from(axis);
             }
             grad.extend(du);
         }
@@ -235,7 +261,7 @@ impl MeshProblem {
             // a = clamp(κ a', 0, 1): ∂C/∂a' = κ ∂loss/∂a inside [0, 1], 0 where the
             // clamp holds (the solvers keep a' inside by `project`).
             let k = self.value_scale();
-            let a = &theta[3 * n..];
+            let a = &theta[self.values_at()..];
             grad.extend(eval.d_values.iter().zip(a).map(|(&d, &a)| {
                 if (0.0..=1.0).contains(&(k * a)) {
                     k * d
@@ -273,9 +299,8 @@ impl Project for MeshProblem {
     /// reached a bound keeps a live gradient and can come back.
     fn project(&self, theta: &mut [f64]) {
         if self.settings.fit_values {
-            let n = self.template.vertices.len();
             let hi = 1.0 / self.value_scale();
-            if let Some(values) = theta.get_mut(3 * n..) {
+            if let Some(values) = theta.get_mut(self.values_at()..) {
                 for a in values {
                     *a = a.clamp(0.0, hi);
                 }

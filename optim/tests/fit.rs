@@ -94,6 +94,7 @@ fn stage(iters: u64, solver: SolverKind, lr: f64) -> Stage {
         lr,
         large_steps: 4.0,
         laplacian: 0.0,
+        fit_positions: true,
         fit_albedo: false,
         albedo_step: 10.0,
         remesh: None,

@@ -39,6 +39,15 @@ impl MeshObjective for Smooth {
 
 #[test]
 fn gradient_matches_finite_differences_with_large_steps_smoothness_and_scaled_albedo() {
+    check_gradient(true);
+}
+
+#[test]
+fn albedo_only_gradient_matches_and_positions_stay() {
+    check_gradient(false);
+}
+
+fn check_gradient(fit_positions: bool) {
     let mut mesh = common::sheet(3);
     let n = mesh.vertices.len();
     for (i, p) in mesh.vertices.iter_mut().enumerate() {
@@ -52,12 +61,18 @@ fn gradient_matches_finite_differences_with_large_steps_smoothness_and_scaled_al
         ProblemSettings {
             large_steps: 2.0,
             laplacian: 0.3,
+            fit_positions,
             fit_values: true,
             value_scale: 10.0,
         },
     );
     let theta = problem.encode(&mesh);
+    assert_eq!(theta.len(), if fit_positions { 4 * n } else { n });
     let grad = problem.gradient(&theta).unwrap();
+    let mut moved = theta.clone();
+    moved.iter_mut().for_each(|v| *v *= 0.9);
+    let decoded = problem.decode(&moved).unwrap();
+    assert_eq!(decoded.vertices == mesh.vertices, !fit_positions);
     let mut worst: f64 = 0.0;
     for k in 0..theta.len() {
         let h = 1e-6;
@@ -86,6 +101,7 @@ fn projection_clamps_the_albedo_block_only() {
         ProblemSettings {
             large_steps: 1.0,
             laplacian: 0.0,
+            fit_positions: true,
             fit_values: true,
             value_scale: 10.0,
         },

@@ -104,6 +104,7 @@ pub fn default_schedule() -> Schedule {
         lr,
         large_steps: 2.0,
         laplacian: 0.0,
+        fit_positions: true,
         fit_albedo,
         albedo_step: 10.0,
         remesh: None,

@@ -97,7 +97,6 @@ pub struct FitArgs {
     pub quiet: bool,
 }
 
-
 /// Timing jitter assumed for the Stanford LCT captures (OPL σ, m): 30 ps σ (70 ps
 /// FWHM) of system response, chosen by the diffuse S fit's residual (docs/FITTING.md).
 const LCT_JITTER_OPL: f64 = 0.009;

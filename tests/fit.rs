@@ -80,6 +80,7 @@ fn config(schedule: Schedule) -> FitConfig {
         ignore_before_opl: None,
         jitter_opl: 0.0,
         time_offset_max_opl: 0.0,
+        irf: None,
         reflectance: Default::default(),
     }
 }

@@ -14,6 +14,21 @@ use umbra::transport::{RenderOptions, Renderer};
 
 #[test]
 fn objective_gradient_matches_finite_differences_with_jitter_and_per_bin_background() {
+    gradient_check(None);
+}
+
+/// The same through a measured impulse response (a SPAD-like exponential tail).
+#[test]
+fn objective_gradient_matches_finite_differences_through_an_irf() {
+    let taps: Vec<f64> = (0..12).map(|k| (-(k as f64) / 3.0).exp()).collect();
+    let total: f64 = taps.iter().sum();
+    gradient_check(Some(umbra::film::irf::Irf {
+        bin_width: 0.01,
+        taps: taps.iter().map(|t| t / total).collect(),
+    }));
+}
+
+fn gradient_check(irf: Option<umbra::film::irf::Irf>) {
     let mut scene = default_scene().unwrap();
     scene.scan.nx = 6;
     scene.scan.ny = 6;
@@ -59,6 +74,7 @@ fn objective_gradient_matches_finite_differences_with_jitter_and_per_bin_backgro
         first_bin: 20,
         jitter_opl: 0.04,
         time_offset_max_opl: 0.0,
+        irf,
     };
     let eval = objective.evaluate(&mesh).unwrap();
     assert!(eval.loss > 1e-4, "{}", eval.loss);
@@ -137,6 +153,7 @@ fn objective_finds_a_time_offset_of_the_measurement() {
         first_bin: 0,
         jitter_opl: 0.03,
         time_offset_max_opl: max,
+        irf: None,
     };
     let (_, loss, _, offset) = objective(0.05).render(&mesh).unwrap();
     assert!((offset - 0.017).abs() < 2e-4, "offset {offset}");

@@ -80,6 +80,17 @@ impl JitterKernel {
         }
     }
 
+    /// A causal kernel with the given taps (lag 0 first), e.g. a measured impulse
+    /// response ([`super::irf::Irf`]); no shift derivative.
+    pub fn from_taps(taps: Vec<f64>) -> JitterKernel {
+        let d_taps = vec![0.0; taps.len()];
+        JitterKernel {
+            first: 0,
+            taps,
+            d_taps,
+        }
+    }
+
     /// Applies `weights` (the taps or their derivative) to every `bins`-long row, in
     /// place; `transpose` applies the transposed map (the adjoint).
     fn apply_with(&self, weights: &[f64], data: &mut [f32], bins: usize, transpose: bool) {

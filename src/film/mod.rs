@@ -18,6 +18,7 @@ use crate::scene::{FilmSpec, KernelSpec};
 #[cfg(test)]
 mod adjoint_tests;
 mod box_pulse;
+pub mod irf;
 pub mod jitter;
 mod pulse;
 

@@ -367,6 +367,8 @@ pub struct UmbraObjective {
     /// Detector timing jitter `σ` (OPL, m) applied to the render after binning
     /// ([`crate::film::jitter`]); 0: none.
     pub jitter_opl: f64,
+    /// The detector's measured impulse response, used instead of the jitter Gaussian.
+    pub irf: Option<crate::film::irf::Irf>,
     /// Search an unknown time offset `|δ| ≤` this (OPL, m; needs `jitter_opl > 0`;
     /// [`super::time_offset`]); 0: none.
     pub time_offset_max_opl: f64,
@@ -414,6 +416,7 @@ impl UmbraObjective {
             intensity: self.intensity,
             sigma_bins: self.jitter_opl / width,
             offset_max_bins: self.time_offset_max_opl / width,
+            irf: self.irf.as_ref().map_or(Vec::new(), |k| k.taps_at(width)),
         }
     }
 

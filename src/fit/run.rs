@@ -65,6 +65,8 @@ pub struct FitConfig {
     pub ignore_before_opl: Option<f32>,
     /// Detector timing jitter `σ` (OPL, m) blurred into the render (0: none).
     pub jitter_opl: f64,
+    /// The detector's measured impulse response (replaces the jitter Gaussian).
+    pub irf: Option<crate::film::irf::Irf>,
     /// Fit an unknown time offset `|δ| ≤` this (OPL, m; needs `jitter_opl > 0`).
     pub time_offset_max_opl: f64,
     /// How the fitted surface reflects.
@@ -164,6 +166,7 @@ impl Factory<'_> {
             two_sided: self.cfg.two_sided,
             reflectance: self.cfg.reflectance,
             jitter_opl: self.cfg.jitter_opl,
+            irf: self.cfg.irf.clone(),
             time_offset_max_opl: self.cfg.time_offset_max_opl,
         })
     }

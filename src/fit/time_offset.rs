@@ -31,8 +31,8 @@ pub struct Comparison {
     pub fitted: Vec<f32>,
 }
 
-/// The settings of [`compare`], in bins of the render.
-#[derive(Clone, Copy, Debug)]
+/// The settings of [`Comparator::compare`], in bins of the render.
+#[derive(Clone, Debug)]
 pub struct Comparator {
     pub bins: usize,
     pub first_bin: usize,
@@ -41,16 +41,27 @@ pub struct Comparator {
     pub sigma_bins: f64,
     /// Largest `|δ|` searched, in bins (0: no offset).
     pub offset_max_bins: f64,
+    /// A measured impulse response at the render's bin width (lag 0 first), used instead
+    /// of the Gaussian when not empty (no offset search then).
+    pub irf: Vec<f64>,
 }
 
 impl Comparator {
+    fn kernel(&self, shift: f64) -> JitterKernel {
+        if self.irf.is_empty() {
+            JitterKernel::new(self.sigma_bins, shift)
+        } else {
+            JitterKernel::from_taps(self.irf.clone())
+        }
+    }
+
     fn at(
         &self,
         raw: &[f32],
         measured: &[f32],
         shift: f64,
     ) -> (f64, Vec<f32>, Intensity, Vec<f32>) {
-        let kernel = JitterKernel::new(self.sigma_bins, shift);
+        let kernel = self.kernel(shift);
         let mut fitted = raw.to_vec();
         kernel.apply(&mut fitted, self.bins);
         zero_leading_bins(&mut fitted, self.bins, self.first_bin);
@@ -61,7 +72,7 @@ impl Comparator {
     }
 
     fn loss_at(&self, raw: &[f32], measured: &[f32], shift: f64) -> f64 {
-        let kernel = JitterKernel::new(self.sigma_bins, shift);
+        let kernel = self.kernel(shift);
         let mut fitted = raw.to_vec();
         kernel.apply(&mut fitted, self.bins);
         zero_leading_bins(&mut fitted, self.bins, self.first_bin);
@@ -71,7 +82,7 @@ impl Comparator {
     /// The best `δ` in `[−δ_max, δ_max]` (bins).
     fn best_offset(&self, raw: &[f32], measured: &[f32]) -> f64 {
         let max = self.offset_max_bins;
-        if max <= 0.0 || self.sigma_bins < 0.05 {
+        if max <= 0.0 || self.sigma_bins < 0.05 || !self.irf.is_empty() {
             return 0.0;
         }
         let step = (0.25 * self.sigma_bins).max(max / 200.0);
@@ -157,6 +168,7 @@ mod tests {
             },
             sigma_bins: 1.5,
             offset_max_bins: max,
+            irf: Vec::new(),
         }
     }
 

@@ -58,9 +58,15 @@ pub struct FitArgs {
     pub background: Option<umbra::fit::Background>,
     /// Detector timing jitter: blur the render along time with a Gaussian of this
     /// standard deviation (OPL, m) before comparing it with the measurement. Default 0
-    /// (the scene's film kernel only); 0.009 for LCT `.mat` captures (docs/FITTING.md).
+    /// (the scene's film kernel only). Needs `--irf none` where an IRF is the default.
     #[arg(long)]
     pub jitter: Option<f64>,
+    /// The detector's impulse response the render is convolved with, instead of the
+    /// `--jitter` Gaussian: `none`, `direct` (estimated from the measurement's own
+    /// direct return, the bins before `--ignore-before`; default for LCT `.mat`
+    /// captures) or a `.npy` file of taps at the measurement's bin width, lag 0 first.
+    #[arg(long)]
+    pub irf: Option<String>,
     /// Fit an unknown time offset of the measurement, searched within +- this (OPL, m):
     /// the render is shifted through the jitter kernel, so it needs `--jitter`.
     #[arg(long)]
@@ -96,11 +102,6 @@ pub struct FitArgs {
     #[arg(long, short)]
     pub quiet: bool,
 }
-
-/// Timing jitter assumed for the Stanford LCT captures (OPL σ, m): 30 ps σ (70 ps
-/// FWHM) of system response, chosen by the diffuse S fit's residual (docs/FITTING.md).
-const LCT_JITTER_OPL: f64 = 0.009;
-
 fn parse_bin(text: &str) -> std::result::Result<(u32, u32), String> {
     let parse = |t: &str| {
         t.trim()
@@ -263,9 +264,69 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
             ))
         })?,
     };
-    let jitter_opl = args
-        .jitter
-        .unwrap_or(if is_lct { LCT_JITTER_OPL } else { 0.0 });
+    let irf_choice = args.irf.clone().unwrap_or_else(|| {
+        if is_lct {
+            "direct".into()
+        } else {
+            "none".into()
+        }
+    });
+    let width = scene.film.bin_width_opl as f64;
+    let irf = match irf_choice.as_str() {
+        "none" => None,
+        "direct" => {
+            let first = umbra::fit::objective::first_fitted_bin(&scene, ignore_before_opl);
+            if first == 0 {
+                return Err(Error::Invalid(
+                    "--irf direct: the direct return is the bins before --ignore-before OPL, and none are left out".into(),
+                ));
+            }
+            let bins = scene.film.temporal_bins as usize;
+            let irf = umbra::film::irf::Irf::from_direct_return(&measured, bins, first, width)
+                .ok_or_else(|| {
+                    Error::Invalid(
+                        "--irf direct: the measurement's leading bins hold nothing above its floor"
+                            .into(),
+                    )
+                })?;
+            eprintln!(
+                "umbra fit: detector response from the direct return: {} bins of {:.2} mm, {:.0} % of it beyond 24 mm",
+                irf.taps.len(),
+                1e3 * width,
+                100.0 * irf.taps_at(0.024).iter().skip(1).sum::<f64>()
+            );
+            Some(irf)
+        }
+        file => {
+            let path = Path::new(file);
+            let t = umbra::io::read_npy(path)?;
+            let total: f64 = t.data.iter().map(|&v| v as f64).sum();
+            if t.shape.len() != 1
+                || t.data.iter().any(|v| !v.is_finite() || *v < 0.0)
+                || total <= 0.0
+            {
+                return Err(Error::Invalid(format!(
+                    "--irf {file}: expected a 1-D array of non-negative taps (shape {:?})",
+                    t.shape
+                )));
+            }
+            Some(umbra::film::irf::Irf {
+                bin_width: width,
+                taps: t.data.iter().map(|&v| v as f64 / total).collect(),
+            })
+        }
+    };
+    if irf.is_some() && args.jitter.is_some() {
+        return Err(Error::Invalid(
+            "--jitter and --irf both give the detector's response: give one (--irf none for the Gaussian)".into(),
+        ));
+    }
+    let jitter_opl = args.jitter.unwrap_or(0.0);
+    if irf.is_some() && args.time_offset.is_some() {
+        return Err(Error::Invalid(
+            "--time-offset shifts the --jitter Gaussian: use it with --irf none".into(),
+        ));
+    }
     if !(jitter_opl.is_finite() && jitter_opl >= 0.0) {
         return Err(Error::Invalid(format!(
             "--jitter: {jitter_opl} is not a standard deviation (OPL, m, >= 0)"
@@ -302,6 +363,7 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         resume: args.resume,
         ignore_before_opl,
         jitter_opl,
+        irf,
         time_offset_max_opl,
         reflectance,
     };

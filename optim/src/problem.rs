@@ -148,7 +148,7 @@ impl MeshProblem {
             &[]
         };
         for x in positions {
-            self.lap.apply(&x, &mut mx);
+            self.lap.apply(x, &mut mx);
             theta.extend(
                 x.iter()
                     .zip(&mx)

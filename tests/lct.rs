@@ -45,3 +45,28 @@ fn a_file_that_is_not_a_capture_is_a_clear_error() {
     assert!(e.contains("bad.mat") && e.contains("MATLAB"), "{e}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// The SPAD's response, read off the capture's own direct return: a long diffusion tail
+/// that a Gaussian jitter cannot model (docs/FITTING.md, "Real data"). Pins the figures
+/// quoted there: at 9.6 mm bins most of the response lies beyond 24 mm of OPL, and it
+/// decays monotonically over its first 100 mm.
+#[test]
+fn diffuse_s_direct_return_gives_a_long_tailed_impulse_response() {
+    let c = read_lct(&data_dir().join("data_diffuse_s.mat")).unwrap();
+    let irf =
+        umbra::film::irf::Irf::from_direct_return(&c.transient.data, 2048, 600, LCT_BIN_OPL as f64)
+            .unwrap();
+    let coarse = irf.taps_at(8.0 * LCT_BIN_OPL as f64);
+    let beyond_24mm: f64 = irf.taps_at(0.024).iter().skip(1).sum();
+    println!(
+        "IRF: first coarse taps {:?}, {:.0} % beyond 24 mm",
+        &coarse[..6],
+        100.0 * beyond_24mm
+    );
+    assert!(beyond_24mm > 0.5 && beyond_24mm < 0.8, "{beyond_24mm}");
+    assert!(
+        coarse[..10].windows(2).all(|w| w[1] < w[0]),
+        "{:?}",
+        &coarse[..10]
+    );
+}

@@ -9,8 +9,30 @@ use umbra::fit::objective::UmbraObjective;
 use umbra::fit::{Background, IntensityModel};
 use umbra::geometry::SceneGeometry;
 use umbra::scene::default::default_scene;
-use umbra::scene::{KernelSpec, Model};
+use umbra::scene::{KernelSpec, Model, Scene};
 use umbra::transport::{RenderOptions, Renderer};
+
+/// The default scene's letter on a 6 x 6 scan of 96 box bins, its tri3 options and
+/// render.
+fn small_letter() -> (Scene, RenderOptions, Vec<f32>) {
+    let mut scene = default_scene().unwrap();
+    scene.scan.nx = 6;
+    scene.scan.ny = 6;
+    scene.film.temporal_bins = 96;
+    scene.film.bin_width_opl = 0.02;
+    scene.film.kernel = KernelSpec::Box;
+    let opts = RenderOptions {
+        model: Model::Tri3,
+        ..RenderOptions::from_scene(&scene)
+    };
+    let geom = SceneGeometry::build(&scene);
+    let render = Renderer::new(&scene, &geom, &opts)
+        .unwrap()
+        .render(None)
+        .unwrap()
+        .data;
+    (scene, opts, render)
+}
 
 #[test]
 fn objective_gradient_matches_finite_differences_with_jitter_and_per_bin_background() {
@@ -29,23 +51,8 @@ fn objective_gradient_matches_finite_differences_through_an_irf() {
 }
 
 fn gradient_check(irf: Option<umbra::film::irf::Irf>) {
-    let mut scene = default_scene().unwrap();
-    scene.scan.nx = 6;
-    scene.scan.ny = 6;
-    scene.film.temporal_bins = 96;
-    scene.film.bin_width_opl = 0.02;
-    scene.film.kernel = KernelSpec::Box;
-    let opts = RenderOptions {
-        model: Model::Tri3,
-        ..RenderOptions::from_scene(&scene)
-    };
     // Measurement: the true letter, scaled, plus a decaying per-bin floor.
-    let geom = SceneGeometry::build(&scene);
-    let mut measured = Renderer::new(&scene, &geom, &opts)
-        .unwrap()
-        .render(None)
-        .unwrap()
-        .data;
+    let (scene, opts, mut measured) = small_letter();
     let bins = scene.film.temporal_bins as usize;
     let peak = measured.iter().cloned().fold(0.0f32, f32::max);
     for (i, v) in measured.iter_mut().enumerate() {
@@ -120,22 +127,7 @@ fn gradient_check(irf: Option<umbra::film::irf::Irf>) {
 fn objective_finds_a_time_offset_of_the_measurement() {
     // The measurement is the true letter's render through the jitter kernel, delayed by
     // 1.7 cm of OPL: the objective finds the delay and explains the data exactly.
-    let mut scene = default_scene().unwrap();
-    scene.scan.nx = 6;
-    scene.scan.ny = 6;
-    scene.film.temporal_bins = 96;
-    scene.film.bin_width_opl = 0.02;
-    scene.film.kernel = KernelSpec::Box;
-    let opts = RenderOptions {
-        model: Model::Tri3,
-        ..RenderOptions::from_scene(&scene)
-    };
-    let geom = SceneGeometry::build(&scene);
-    let mut measured = Renderer::new(&scene, &geom, &opts)
-        .unwrap()
-        .render(None)
-        .unwrap()
-        .data;
+    let (scene, opts, mut measured) = small_letter();
     let bins = scene.film.temporal_bins as usize;
     umbra::film::jitter::JitterKernel::new(0.03 / 0.02, 0.017 / 0.02).apply(&mut measured, bins);
     let mesh = umbra::fit::fit_mesh(&scene.objects[0].mesh);

@@ -10,11 +10,9 @@
 //! the feasible set first ([`Project`]: albedo in its bounds; projected gradient descent). The moments are not updated by
 //! a rejected step. The whole struct serialises, so checkpoints resume exactly.
 
-use crate::problem::Project;
-use argmin::core::{CostFunction, Error, Gradient, IterState, Problem, Solver, State as _, KV};
+use crate::step::{evaluate, start, take_point, Objective, State};
+use argmin::core::{Error, Problem, Solver, State as _, KV};
 use serde::{Deserialize, Serialize};
-
-type State = IterState<Vec<f64>, Vec<f64>, (), (), (), f64>;
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct Adam {
@@ -48,23 +46,7 @@ impl Adam {
     }
 }
 
-/// Cost and gradient at `theta`, or `None` when either fails or is not finite.
-pub(crate) fn evaluate<O>(problem: &mut Problem<O>, theta: &Vec<f64>) -> Option<(f64, Vec<f64>)>
-where
-    O: CostFunction<Param = Vec<f64>, Output = f64>
-        + Gradient<Param = Vec<f64>, Gradient = Vec<f64>>,
-{
-    let cost = problem.cost(theta).ok()?;
-    let grad = problem.gradient(theta).ok()?;
-    (cost.is_finite() && grad.iter().all(|g| g.is_finite())).then_some((cost, grad))
-}
-
-impl<O> Solver<O, State> for Adam
-where
-    O: CostFunction<Param = Vec<f64>, Output = f64>
-        + Gradient<Param = Vec<f64>, Gradient = Vec<f64>>
-        + Project,
-{
+impl<O: Objective> Solver<O, State> for Adam {
     fn name(&self) -> &str {
         "Adam"
     }
@@ -74,16 +56,11 @@ where
         problem: &mut Problem<O>,
         state: State,
     ) -> Result<(State, Option<KV>), Error> {
-        let theta = state
-            .get_param()
-            .ok_or_else(|| Error::msg("Adam needs an initial parameter vector"))?
-            .clone();
-        let (cost, grad) = evaluate(problem, &theta).ok_or_else(|| {
-            Error::msg("the initial mesh cannot be evaluated (NaN or render error)")
-        })?;
-        self.m = vec![0.0; theta.len()];
-        self.v = vec![0.0; theta.len()];
-        Ok((state.cost(cost).gradient(grad), None))
+        let state = start(problem, state, "Adam")?;
+        let n = state.get_param().map_or(0, |t| t.len());
+        self.m = vec![0.0; n];
+        self.v = vec![0.0; n];
+        Ok((state, None))
     }
 
     fn next_iter(
@@ -91,12 +68,7 @@ where
         problem: &mut Problem<O>,
         mut state: State,
     ) -> Result<(State, Option<KV>), Error> {
-        let theta = state
-            .take_param()
-            .ok_or_else(|| Error::msg("Adam: no parameter vector in the state"))?;
-        let g = state
-            .take_gradient()
-            .ok_or_else(|| Error::msg("Adam: no gradient in the state"))?;
+        let (theta, g) = take_point(&mut state, "Adam")?;
         let t = self.t + 1;
         let (b1, b2) = (self.beta1, self.beta2);
         let m: Vec<f64> = self
@@ -148,7 +120,8 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
-    use argmin::core::Executor;
+    use crate::problem::Project;
+    use argmin::core::{CostFunction, Executor, Gradient};
 
     /// A quadratic bowl that returns NaN for x[0] > 2.
     struct Bowl;

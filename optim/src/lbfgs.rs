@@ -29,15 +29,10 @@
 //!
 //! The whole struct serialises, so checkpoints resume exactly.
 
-use crate::adam::evaluate;
-use crate::problem::Project;
-use argmin::core::{
-    CostFunction, Error, Gradient, IterState, Problem, Solver, State as _, TerminationReason, KV,
-};
+use crate::step::{evaluate, start, take_point, Objective, State};
+use argmin::core::{Error, Problem, Solver, State as _, TerminationReason, KV};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
-
-type State = IterState<Vec<f64>, Vec<f64>, (), (), (), f64>;
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct Lbfgs {
@@ -143,19 +138,14 @@ enum Search {
 
 impl Lbfgs {
     /// The projected Armijo search from `theta` (cost `cost`, gradient `g`) along `d`.
-    fn search<O>(
+    fn search<O: Objective>(
         &mut self,
         problem: &mut Problem<O>,
         theta: &[f64],
         cost: f64,
         g: &[f64],
         d: &[f64],
-    ) -> Search
-    where
-        O: CostFunction<Param = Vec<f64>, Output = f64>
-            + Gradient<Param = Vec<f64>, Gradient = Vec<f64>>
-            + Project,
-    {
+    ) -> Search {
         let d_max = max_abs(d);
         if d_max == 0.0 || !d_max.is_finite() {
             return Search::Failed(None);
@@ -207,12 +197,7 @@ impl Lbfgs {
     }
 }
 
-impl<O> Solver<O, State> for Lbfgs
-where
-    O: CostFunction<Param = Vec<f64>, Output = f64>
-        + Gradient<Param = Vec<f64>, Gradient = Vec<f64>>
-        + Project,
-{
+impl<O: Objective> Solver<O, State> for Lbfgs {
     fn name(&self) -> &str {
         "L-BFGS (projected Armijo, capped)"
     }
@@ -222,18 +207,8 @@ where
         problem: &mut Problem<O>,
         state: State,
     ) -> Result<(State, Option<KV>), Error> {
-        let mut theta = state
-            .get_param()
-            .ok_or_else(|| Error::msg("L-BFGS needs an initial parameter vector"))?
-            .clone();
-        if let Some(p) = problem.problem.as_ref() {
-            p.project(&mut theta);
-        }
         self.evaluations += 1;
-        let (cost, grad) = evaluate(problem, &theta).ok_or_else(|| {
-            Error::msg("the initial mesh cannot be evaluated (NaN or render error)")
-        })?;
-        Ok((state.param(theta).cost(cost).gradient(grad), None))
+        Ok((start(problem, state, "L-BFGS")?, None))
     }
 
     fn next_iter(
@@ -241,12 +216,7 @@ where
         problem: &mut Problem<O>,
         mut state: State,
     ) -> Result<(State, Option<KV>), Error> {
-        let theta = state
-            .take_param()
-            .ok_or_else(|| Error::msg("L-BFGS: no parameter vector in the state"))?;
-        let g = state
-            .take_gradient()
-            .ok_or_else(|| Error::msg("L-BFGS: no gradient in the state"))?;
+        let (theta, g) = take_point(&mut state, "L-BFGS")?;
         let cost = state.get_cost();
         let evals_before = self.evaluations;
         let mut d = self.direction(&g);
@@ -293,7 +263,8 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
-    use argmin::core::Executor;
+    use crate::problem::Project;
+    use argmin::core::{CostFunction, Executor, Gradient};
 
     /// Rosenbrock's valley, NaN beyond `x[0] > nan_above`, and a box `x[1] ≤ y_max` (by
     /// projection) for the constrained test.

@@ -11,6 +11,7 @@ pub mod lbfgs;
 pub mod mesh;
 pub mod problem;
 pub mod remesh;
+pub mod step;
 
 pub use adam::Adam;
 pub use fit::{fit, FitError, FitOutcome, ObjectiveFactory, Schedule, SolverKind, Stage};

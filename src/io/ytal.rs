@@ -115,15 +115,24 @@ fn read_code<E: H5Type + Copy>(
     }
 }
 
-/// A float scalar (or one-element array); `None` if absent or empty.
-fn read_scalar(path: &Path, file: &hdf5::File, name: &str) -> Result<Option<f64>> {
+/// A dataset's numbers as `f64`; `None` if absent or empty.
+fn read_numbers(path: &Path, file: &hdf5::File, name: &str) -> Result<Option<Vec<f64>>> {
     let Some(ds) = dataset(path, file, name)? else {
         return Ok(None);
     };
     if is_null(&ds) {
         return Ok(None);
     }
-    let v = ds.read_raw::<f64>().map_err(|e| field_err(path, name, e))?;
+    ds.read_raw::<f64>()
+        .map(Some)
+        .map_err(|e| field_err(path, name, e))
+}
+
+/// A float scalar (or one-element array); `None` if absent or empty.
+fn read_scalar(path: &Path, file: &hdf5::File, name: &str) -> Result<Option<f64>> {
+    let Some(v) = read_numbers(path, file, name)? else {
+        return Ok(None);
+    };
     match v.as_slice() {
         [x] if x.is_finite() => Ok(Some(*x)),
         [x] => Err(field_err(path, name, format!("must be finite, got {x}"))),
@@ -166,13 +175,9 @@ fn read_bool(path: &Path, file: &hdf5::File, name: &str) -> Result<Option<bool>>
 /// A point stored as three numbers (`laser_xyz`, `sensor_xyz`); `None` if absent or
 /// empty.
 fn read_point(path: &Path, file: &hdf5::File, name: &str) -> Result<Option<Vec3>> {
-    let Some(ds) = dataset(path, file, name)? else {
+    let Some(v) = read_numbers(path, file, name)? else {
         return Ok(None);
     };
-    if is_null(&ds) {
-        return Ok(None);
-    }
-    let v = ds.read_raw::<f64>().map_err(|e| field_err(path, name, e))?;
     match v.as_slice() {
         [x, y, z] if v.iter().all(|c| c.is_finite()) => {
             Ok(Some(Vec3::new(*x as f32, *y as f32, *z as f32)))

@@ -95,3 +95,59 @@ pub fn shared_dir(var: &str, name: &str) -> std::path::PathBuf {
     }
     PathBuf::from("/work/shared/data").join(name)
 }
+
+/// The adjoint against CRN central differences on `params` parameters per object
+/// (`adjoint::check`), each within 1 % of `max(|fd|, 2 % of the largest)`.
+/// Most scenes sit off the scan grid's symmetry lines (generic positions);
+/// `tri3_at_exact_opl_ties` checks a mirror-symmetric placement, where corners of
+/// sub-triangles tie in OPL exactly.
+pub fn check(scene: &Scene, model: Model, spp: u32, params: usize) {
+    let opts = RenderOptions {
+        model,
+        spp,
+        seed: 7,
+        ..RenderOptions::from_scene(scene)
+    };
+    let ps = umbra::adjoint::check::pick_params(scene, params, 12345);
+    // Steps small against σ = 12 mm (the difference's own error is (h/σ)² / 6); tri3's
+    // f64 reference allows smaller ones.
+    let h = if model == Model::Tri3 { 1e-4 } else { 3e-4 };
+    let rows = umbra::adjoint::check::run(scene, &opts, &ps, &[h]).unwrap();
+    let largest = rows.iter().map(|r| r.fd[0].1.abs()).fold(0.0, f64::max);
+    assert!(
+        largest > 0.0,
+        "no gradient signal: the test scene is broken"
+    );
+    for r in &rows {
+        let err = r.error(0.02 * largest);
+        println!(
+            "{model:?} {}: adjoint {:.6e} fd {:.6e} rel {err:.2e}",
+            r.param, r.adjoint, r.fd[0].1
+        );
+        assert!(
+            err < 0.01,
+            "{model:?} {}: adjoint {} vs fd {} ({err:.3e})",
+            r.param,
+            r.adjoint,
+            r.fd[0].1
+        );
+    }
+}
+
+/// Relative L2 between the eight-lane `f32` tri3 kernel's render and its `f64` reference
+/// path (`adjoint::check::primal`); panics if the reference is all zero.
+pub fn kernel_vs_reference(scene: &Scene, geom: &SceneGeometry, opts: &RenderOptions) -> f64 {
+    let opts = RenderOptions {
+        model: Model::Tri3,
+        ..*opts
+    };
+    let fast = transport::render(scene, geom, &opts, None).unwrap();
+    let reference = umbra::adjoint::check::primal(scene, geom, &opts).unwrap();
+    let (mut num, mut den) = (0.0, 0.0);
+    for (a, b) in fast.data.iter().zip(&reference) {
+        num += (*a as f64 - b).powi(2);
+        den += b * b;
+    }
+    assert!(den > 0.0, "the reference render is zero");
+    (num / den).sqrt()
+}

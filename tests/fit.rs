@@ -308,5 +308,30 @@ fn cli_fit_runs_resumes_and_reports_bad_input() {
     let bad = run(&["--measured", "/nonexistent/capture.npy"]);
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("/nonexistent/capture.npy"));
+    // Options that contradict each other or name nothing: refused, saying which.
+    let fresh = d.join("fresh");
+    for (args, says) in [
+        (&["--time-offset", "0.02"][..], "--jitter"),
+        (
+            &["--jitter", "0.01", "--irf", "direct"][..],
+            "--jitter and --irf",
+        ),
+        (&["--irf", "direct"][..], "--ignore-before"),
+        (&["--reflectance", "mirror"][..], "mirror"),
+        (&["--background", "sometimes"][..], "sometimes"),
+        (&["--jitter=-1"][..], "--jitter"),
+    ] {
+        let r = std::process::Command::new(exe)
+            .args(["fit", "-q", "--target-spp", "4", "--config"])
+            .arg(&config)
+            .arg("-o")
+            .arg(&fresh)
+            .args(args)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert!(!r.status.success(), "{args:?} was accepted");
+        assert!(err.contains(says), "{args:?}: {err}");
+    }
     let _ = std::fs::remove_dir_all(&d);
 }

@@ -271,6 +271,13 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
             "none".into()
         }
     });
+    if irf_choice != "none" && args.jitter.is_some() {
+        return Err(Error::Invalid(if args.irf.is_some() {
+            "--jitter and --irf both give the detector's response: give one".into()
+        } else {
+            "--jitter and --irf both give the detector's response: LCT captures use --irf direct by default, add --irf none for the Gaussian".into()
+        }));
+    }
     let width = scene.film.bin_width_opl as f64;
     let irf = match irf_choice.as_str() {
         "none" => None,
@@ -316,11 +323,6 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
             })
         }
     };
-    if irf.is_some() && args.jitter.is_some() {
-        return Err(Error::Invalid(
-            "--jitter and --irf both give the detector's response: give one (--irf none for the Gaussian)".into(),
-        ));
-    }
     let jitter_opl = args.jitter.unwrap_or(0.0);
     if irf.is_some() && args.time_offset.is_some() {
         return Err(Error::Invalid(

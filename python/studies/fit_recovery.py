@@ -10,7 +10,7 @@ surface the wall sees, and the whole of it), the loss, and the wall-clock time.
 
 Writes docs/studies/recovery.md (the table), recovery_loss.png (every case's loss
 curve) and each case's transients.png, next to the fits' outputs under --out.
-Needs a release build (`cargo build --release`).
+Needs a release build (`cargo build --release`) and matplotlib (python/requirements-bench.txt).
 """
 import argparse
 import csv

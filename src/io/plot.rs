@@ -155,3 +155,85 @@ pub fn side_by_side(
     root.present().map_err(|e| err(path, e))?;
     Ok(())
 }
+
+/// Line charts with linear axes in a grid of `columns` panels sharing the y range, each
+/// `(panel title, its series)`; the first series of every panel is drawn in black (the
+/// reference), the others in colour.
+pub fn panel_chart(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    columns: usize,
+    panels: &[(String, Vec<Series>)],
+) -> Result<()> {
+    register_font();
+    let finite = |p: &&(f64, f64)| p.0.is_finite() && p.1.is_finite();
+    let pts: Vec<&(f64, f64)> = panels
+        .iter()
+        .flat_map(|(_, s)| s.iter().flat_map(|s| s.points.iter()))
+        .filter(finite)
+        .collect();
+    if pts.is_empty() {
+        return Err(err(path, "no finite values to plot"));
+    }
+    let (x0, x1) = pts
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
+    let (y0, y1) = pts
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+    let x1 = if x1 > x0 { x1 } else { x0 + 1.0 };
+    let pad = 0.05 * (y1 - y0).max(f64::MIN_POSITIVE);
+    let (y0, y1) = (y0.min(0.0) - pad, y1 + pad);
+    let columns = columns.max(1);
+    let rows = panels.len().div_ceil(columns).max(1);
+    let root = BitMapBackend::new(path, (560 * columns as u32, 60 + 380 * rows as u32))
+        .into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(path, e))?;
+    let (head, body) = root.split_vertically(50);
+    head.draw(&Text::new(title, (20, 14), (FAMILY, 20)))
+        .map_err(|e| err(path, e))?;
+    for (area, (name, series)) in body.split_evenly((rows, columns)).iter().zip(panels) {
+        let mut chart = ChartBuilder::on(area)
+            .caption(name, (FAMILY, 16))
+            .margin(10)
+            .x_label_area_size(36)
+            .y_label_area_size(70)
+            .build_cartesian_2d(x0..x1, y0..y1)
+            .map_err(|e| err(path, e))?;
+        chart
+            .configure_mesh()
+            .x_desc(x_label)
+            .label_style((FAMILY, 12))
+            .y_label_formatter(&|v| format!("{v:.1e}"))
+            .draw()
+            .map_err(|e| err(path, e))?;
+        for (k, s) in series.iter().enumerate() {
+            let colour = if k == 0 {
+                BLACK.to_rgba()
+            } else {
+                Palette99::pick(k).to_rgba()
+            };
+            let pts: Vec<(f64, f64)> = s.points.iter().filter(finite).cloned().collect();
+            chart
+                .draw_series(LineSeries::new(
+                    pts,
+                    colour.stroke_width(if k == 0 { 2 } else { 1 }),
+                ))
+                .map_err(|e| err(path, e))?
+                .label(s.label)
+                .legend(move |(x, y)| {
+                    PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2))
+                });
+        }
+        chart
+            .configure_series_labels()
+            .label_font((FAMILY, 12))
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(|e| err(path, e))?;
+    }
+    root.present().map_err(|e| err(path, e))?;
+    Ok(())
+}

@@ -5,6 +5,9 @@
 //!   over repetitions, setup excluded) and pairs per second.
 //! - [`tri3_error_table`]: `tri3`'s relative L2 error against a converged `mc3` reference
 //!   as the subdivision threshold falls, with the cost of each setting.
+//! - [`ablation`]: the seed paper's comparison of sampling techniques at equal samples.
+
+pub mod ablation;
 
 use crate::error::Result;
 use crate::geometry::mesh::TriMesh;

@@ -6,8 +6,10 @@
 //! - [`tri3_error_table`]: `tri3`'s relative L2 error against a converged `mc3` reference
 //!   as the subdivision threshold falls, with the cost of each setting.
 //! - [`ablation`]: the seed paper's comparison of sampling techniques at equal samples.
+//! - [`accuracy`]: error against wall-clock time for every way of computing a transient.
 
 pub mod ablation;
+pub mod accuracy;
 
 use crate::error::Result;
 use crate::geometry::mesh::TriMesh;

@@ -64,7 +64,7 @@ struct FitCliArgs {
 
 #[derive(clap::Args)]
 struct BenchArgs {
-    /// Which benchmark: tri3, grad, ablation.
+    /// Which benchmark: tri3, grad, ablation, accuracy.
     which: String,
     /// Timed repetitions (median reported).
     #[arg(long, default_value_t = 5)]
@@ -81,9 +81,16 @@ struct BenchArgs {
     /// grad-pass / ablation: samples per measurement (ablation: 32768, reference 128x).
     #[arg(long)]
     spp: Option<u32>,
-    /// ablation: directory for ablation.png and ablation.csv.
+    /// ablation / accuracy: directory for the PNG and CSV (and accuracy's cached
+    /// references).
     #[arg(long, default_value = "docs")]
     out: PathBuf,
+    /// accuracy: stop a method's curve after a render longer than this (s).
+    #[arg(long, default_value_t = 4.0)]
+    budget: f64,
+    /// accuracy: scenes (letter, sphere, bunny, corner), comma-separated.
+    #[arg(long, default_value = "letter,sphere,bunny,corner")]
+    scenes: String,
 }
 
 #[derive(clap::Args)]
@@ -333,10 +340,10 @@ fn bench(args: BenchArgs) -> umbra::Result<()> {
     use umbra::bench;
     if !matches!(
         args.which.as_str(),
-        "tri3" | "grad" | "grad-pass" | "ablation"
+        "tri3" | "grad" | "grad-pass" | "ablation" | "accuracy"
     ) {
         return Err(umbra::Error::Invalid(format!(
-            "bench: unknown benchmark '{}' (available: tri3, grad, ablation)",
+            "bench: unknown benchmark '{}' (available: tri3, grad, ablation, accuracy)",
             args.which
         )));
     }
@@ -360,6 +367,9 @@ fn bench(args: BenchArgs) -> umbra::Result<()> {
     }
     if args.which == "ablation" {
         return pool.install(|| bench_ablation(&args));
+    }
+    if args.which == "accuracy" {
+        return pool.install(|| bench_accuracy(&args));
     }
     pool.install(|| {
         let threads = rayon::current_num_threads();
@@ -446,6 +456,72 @@ fn bench_ablation(args: &BenchArgs) -> umbra::Result<()> {
             100.0 * v.error,
             v.seconds
         );
+    }
+    println!("\n{} and {} written", png.display(), csv.display());
+    Ok(())
+}
+
+/// `umbra bench accuracy`: error against time for every method (bench::accuracy).
+fn bench_accuracy(args: &BenchArgs) -> umbra::Result<()> {
+    use umbra::bench::accuracy;
+    let wanted: Vec<&str> = args.scenes.split(',').map(str::trim).collect();
+    let all = accuracy::scenes()?;
+    if let Some(bad) = wanted.iter().find(|w| !all.iter().any(|(n, _)| n == *w)) {
+        return Err(umbra::Error::Invalid(format!(
+            "--scenes: '{bad}' is not one of letter, sphere, bunny, corner"
+        )));
+    }
+    let reference_spp = args.reference_spp.max(2);
+    let cache = args.out.join("accuracy_cache");
+    let mut points = Vec::new();
+    let mut names = Vec::new();
+    for (name, scene) in all.iter().filter(|(n, _)| wanted.contains(n)) {
+        eprintln!(
+            "bench accuracy: {name}: reference ({reference_spp} spp, cached in {})",
+            cache.display()
+        );
+        let r = accuracy::reference(name, scene, reference_spp, &cache)?;
+        eprintln!(
+            "bench accuracy: {name}: reference error {:.3} %; curves",
+            100.0 * r.error
+        );
+        points.extend(accuracy::curves(name, scene, &r, args.budget)?);
+        names.push(*name);
+        println!(
+            "{name}: reference {reference_spp} spp, its own error {:.3} %",
+            100.0 * r.error
+        );
+    }
+    std::fs::create_dir_all(&args.out).map_err(|e| umbra::Error::io(&args.out, e))?;
+    let csv = args.out.join("accuracy.csv");
+    std::fs::write(&csv, accuracy::csv(&points)).map_err(|e| umbra::Error::io(&csv, e))?;
+    let png = args.out.join("accuracy.png");
+    accuracy::write_png(&png, &points, &names)?;
+    let mut methods: Vec<String> = Vec::new();
+    for p in &points {
+        if !methods.contains(&p.method) {
+            methods.push(p.method.clone());
+        }
+    }
+    println!("\n| scene | method | time to 5 % | time to 1 % | lowest error (its time) |");
+    println!("|---|---|---|---|---|");
+    for scene in &names {
+        for m in &methods {
+            let fmt = |t: Option<f64>| t.map_or("not reached".to_string(), |t| format!("{t:.3} s"));
+            let best = points
+                .iter()
+                .filter(|p| p.scene == *scene && &p.method == m)
+                .min_by(|a, b| a.error.total_cmp(&b.error));
+            if let Some(b) = best {
+                println!(
+                    "| {scene} | {m} | {} | {} | {:.2} % ({:.3} s) |",
+                    fmt(accuracy::time_to(&points, scene, m, 0.05)),
+                    fmt(accuracy::time_to(&points, scene, m, 0.01)),
+                    100.0 * b.error,
+                    b.seconds
+                );
+            }
+        }
     }
     println!("\n{} and {} written", png.display(), csv.display());
     Ok(())

@@ -237,3 +237,82 @@ pub fn panel_chart(
     root.present().map_err(|e| err(path, e))?;
     Ok(())
 }
+
+/// Log-log line charts with markers, in a grid of `columns` panels, each with its own
+/// ranges, `(panel title, its series)`; non-positive values are dropped.
+pub fn loglog_panel_chart(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    columns: usize,
+    panels: &[(String, Vec<Series>)],
+) -> Result<()> {
+    register_font();
+    let columns = columns.max(1);
+    let rows = panels.len().div_ceil(columns).max(1);
+    let root = BitMapBackend::new(path, (620 * columns as u32, 60 + 440 * rows as u32))
+        .into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(path, e))?;
+    let (head, body) = root.split_vertically(50);
+    head.draw(&Text::new(title, (20, 14), (FAMILY, 18)))
+        .map_err(|e| err(path, e))?;
+    let good = |p: &&(f64, f64)| p.0 > 0.0 && p.1 > 0.0 && p.0.is_finite() && p.1.is_finite();
+    for (area, (name, series)) in body.split_evenly((rows, columns)).iter().zip(panels) {
+        let pts: Vec<&(f64, f64)> = series
+            .iter()
+            .flat_map(|s| s.points.iter())
+            .filter(good)
+            .collect();
+        if pts.is_empty() {
+            continue;
+        }
+        let (x0, x1) = pts
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
+        let (y0, y1) = pts
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+        let (x0, x1) = (x0 / 1.5, x1 * 1.5);
+        let (y0, y1) = (y0 / 1.5, y1 * 1.5);
+        let mut chart = ChartBuilder::on(area)
+            .caption(name, (FAMILY, 16))
+            .margin(10)
+            .x_label_area_size(36)
+            .y_label_area_size(70)
+            .build_cartesian_2d((x0..x1).log_scale(), (y0..y1).log_scale())
+            .map_err(|e| err(path, e))?;
+        chart
+            .configure_mesh()
+            .x_desc(x_label)
+            .y_desc("relative L2 error")
+            .label_style((FAMILY, 12))
+            .x_label_formatter(&|v| format!("{v:.0e}"))
+            .y_label_formatter(&|v| format!("{v:.0e}"))
+            .draw()
+            .map_err(|e| err(path, e))?;
+        for (k, s) in series.iter().enumerate() {
+            let colour = Palette99::pick(k).to_rgba();
+            let pts: Vec<(f64, f64)> = s.points.iter().filter(good).cloned().collect();
+            chart
+                .draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))
+                .map_err(|e| err(path, e))?
+                .label(s.label)
+                .legend(move |(x, y)| {
+                    PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2))
+                });
+            chart
+                .draw_series(pts.iter().map(|&p| Circle::new(p, 3, colour.filled())))
+                .map_err(|e| err(path, e))?;
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::LowerLeft)
+            .label_font((FAMILY, 11))
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(|e| err(path, e))?;
+    }
+    root.present().map_err(|e| err(path, e))?;
+    Ok(())
+}

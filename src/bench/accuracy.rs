@@ -1,0 +1,347 @@
+//! Speed against accuracy (`umbra bench accuracy`): for every way Umbra computes a
+//! transient, the relative L2 error against a converged reference as a function of
+//! wall-clock time, on four scenes, in one run on one machine.
+//!
+//! Methods: `tri3` at several subdivision thresholds (deterministic: one point each),
+//! with centroid visibility (the default) and with one shadow ray per sub-triangle;
+//! `mc3` (Monte Carlo three-bounce) and the multi-bounce path tracer with each
+//! combination of the seed paper's techniques that a point laser spot allows (laser
+//! sampling must stay on: without it a path has to hit a point, see the ablation,
+//! [`super::ablation`]): hidden-geometry sampling with BSDF sampling under MIS, BSDF
+//! sampling alone, and hidden-geometry sampling alone (mitransient's estimator), each at
+//! doubling sample counts until a render takes longer than the budget.
+//!
+//! Reference: the path tracer with all techniques at `reference_spp`, as two renders of
+//! half the samples with different seeds, cached in the output directory (keyed by scene
+//! and sample count); their difference gives the reference's own error, removed from
+//! every error in quadrature (`e = sqrt(max(0, e_raw² − e_ref²))`, reported next to the
+//! raw one). The truth is multi-bounce, so the three-bounce models (`tri3`, `mc3`) level
+//! off at the share of light beyond three bounces: on the concave scene that floor is the
+//! point of the comparison.
+//!
+//! Scenes (confocal 16 x 16 over 1.6 m, 256 bins of 8 mm from OPL 1.4 m, Gaussian kernel
+//! σ = 8 mm): the planar letter T (the default scene's), a sphere (1280 triangles), the
+//! bunny-like mesh of the recovery studies (5120 triangles), and a concave corner (two
+//! plates at right angles, interreflections).
+
+use super::rel_l2;
+use crate::error::{Error, Result};
+use crate::geometry::mesh::TriMesh;
+use crate::geometry::shapes::icosphere;
+use crate::geometry::SceneGeometry;
+use crate::scene::{toml_format, Model, Scene, Visibility};
+use crate::transport::{RenderOptions, Renderer};
+use glam::Vec3;
+use std::path::Path;
+use std::time::Instant;
+
+const LETTER: &str = include_str!("../../scenes/meshes/letter_t.obj");
+const BUNNY: &str = include_str!("../../scenes/meshes/bunny_like.obj");
+const CORNER: &str = "v -0.3 -0.25 1.0\nv 0.3 -0.25 1.0\nv 0.3 0.25 1.0\nv -0.3 0.25 1.0\n\
+                      v 0.3 -0.25 0.6\nv 0.3 0.25 0.6\n\
+                      f 1 4 3 2\nf 2 3 6 5\n";
+
+fn scene_with(mesh: TriMesh, translate: [f32; 3], two_sided: bool) -> Result<Scene> {
+    let toml = format!(
+        r#"
+capture_type = "confocal"
+[wall]
+size = [2.0, 2.0]
+albedo = 0.8
+[laser]
+origin = [0.0, -0.5, 1.5]
+[scan]
+resolution = [16, 16]
+size = [1.6, 1.6]
+[film]
+temporal_bins = 256
+bin_width_opl = 0.008
+start_opl = 1.4
+kernel = "gaussian"
+sigma_opl = 0.008
+[[objects]]
+file = "mesh"
+albedo = 0.8
+two_sided = {two_sided}
+transform = {{ translate = [{}, {}, {}] }}
+[render]
+model = "path"
+max_bounces = 8
+"#,
+        translate[0], translate[1], translate[2]
+    );
+    toml_format::parse(&toml, Path::new("<accuracy scene>"), &|_| Ok(mesh.clone()))
+}
+
+/// The four scenes of the module doc, by short name.
+pub fn scenes() -> Result<Vec<(&'static str, Scene)>> {
+    let obj = |text: &str, name: &str| TriMesh::parse_obj(text, Path::new(name));
+    Ok(vec![
+        (
+            "letter",
+            scene_with(obj(LETTER, "letter_t.obj")?, [0.0, 0.0, 1.0], false)?,
+        ),
+        (
+            "sphere",
+            scene_with(icosphere(Vec3::ZERO, 0.2, 3), [0.05, 0.0, 1.0], false)?,
+        ),
+        (
+            "bunny",
+            scene_with(obj(BUNNY, "bunny_like.obj")?, [0.0, 0.0, 1.0], false)?,
+        ),
+        (
+            "corner",
+            scene_with(obj(CORNER, "corner.obj")?, [0.0, 0.0, 0.0], true)?,
+        ),
+    ])
+}
+
+/// One measured point of a method's curve.
+#[derive(Clone, Debug)]
+pub struct Point {
+    pub scene: &'static str,
+    pub method: String,
+    /// Samples per measurement, or the subdivision threshold for `tri3`.
+    pub setting: f64,
+    pub seconds: f64,
+    /// Relative L2 against the reference, its own error removed in quadrature.
+    pub error: f64,
+    pub raw_error: f64,
+}
+
+/// A scene's reference: the mean of two half renders, and the relative L2 error of that
+/// mean (half the relative difference of the halves).
+pub struct Reference {
+    pub data: Vec<f32>,
+    pub error: f64,
+}
+
+fn render(scene: &Scene, opts: &RenderOptions) -> Result<(Vec<f32>, f64)> {
+    let geom = SceneGeometry::build(scene);
+    let start = Instant::now();
+    let t = Renderer::new(scene, &geom, opts)?.render(None)?;
+    Ok((t.data, start.elapsed().as_secs_f64()))
+}
+
+fn with_techniques(scene: &Scene, hidden: bool, bsdf: bool) -> Scene {
+    let mut s = scene.clone();
+    let t = &mut s.render.techniques;
+    t.laser_sampling = true;
+    t.hidden_geometry_sampling = hidden;
+    t.bsdf_sampling = bsdf;
+    s
+}
+
+/// The reference of `scene` at `spp`, from `cache` if a file for it is there.
+pub fn reference(name: &str, scene: &Scene, spp: u32, cache: &Path) -> Result<Reference> {
+    let path = cache.join(format!("reference_{name}_{spp}.npy"));
+    let halves = if path.is_file() {
+        let t = crate::io::read_npy(&path)?;
+        let n = t.data.len() / 2;
+        (t.data[..n].to_vec(), t.data[n..].to_vec())
+    } else {
+        let all = with_techniques(scene, true, true);
+        let half = |seed| {
+            render(
+                &all,
+                &RenderOptions {
+                    model: Model::Path,
+                    spp: (spp / 2).max(1),
+                    seed,
+                    ..RenderOptions::from_scene(&all)
+                },
+            )
+            .map(|r| r.0)
+        };
+        let (a, b) = (half(9001)?, half(9002)?);
+        let mut both = a.clone();
+        both.extend_from_slice(&b);
+        std::fs::create_dir_all(cache).map_err(|e| Error::io(cache, e))?;
+        let t = crate::transport::Transient {
+            shape: vec![2, a.len()],
+            data: both,
+        };
+        crate::io::write_npy(&path, &t)?;
+        (a, b)
+    };
+    let data: Vec<f32> = halves
+        .0
+        .iter()
+        .zip(&halves.1)
+        .map(|(a, b)| 0.5 * (a + b))
+        .collect();
+    // Each half has relative noise e_h, their difference √2 e_h, the mean e_h / √2.
+    let error = 0.5 * rel_l2(&halves.0, &halves.1);
+    Ok(Reference { data, error })
+}
+
+/// Every method's curve on `scene`: renders until one takes longer than `budget` s.
+pub fn curves(name: &'static str, scene: &Scene, r: &Reference, budget: f64) -> Result<Vec<Point>> {
+    let mut out = Vec::new();
+    let mut push = |method: &str, setting: f64, data: &[f32], seconds: f64| {
+        let raw = rel_l2(data, &r.data);
+        out.push(Point {
+            scene: name,
+            method: method.to_string(),
+            setting,
+            seconds,
+            error: (raw * raw - r.error * r.error).max(0.0).sqrt(),
+            raw_error: raw,
+        });
+    };
+    for (label, visibility) in [
+        ("tri3", Visibility::Centroid),
+        ("tri3, sub-triangle visibility", Visibility::Subtriangle),
+    ] {
+        for s in [2.0f32, 0.6, 0.15, 0.05] {
+            let opts = RenderOptions {
+                model: Model::Tri3,
+                subdivision: s,
+                visibility,
+                ..RenderOptions::from_scene(scene)
+            };
+            let (d, t) = render(scene, &opts)?;
+            push(label, s as f64, &d, t);
+            if t > budget {
+                break;
+            }
+        }
+    }
+    let methods: [(&str, Model, bool, bool); 4] = [
+        ("mc3", Model::Mc3, true, true),
+        (
+            "path, MIS (hidden-geometry + BSDF)",
+            Model::Path,
+            true,
+            true,
+        ),
+        ("path, BSDF sampling", Model::Path, false, true),
+        (
+            "path, hidden-geometry sampling (mitransient's)",
+            Model::Path,
+            true,
+            false,
+        ),
+    ];
+    for (label, model, hidden, bsdf) in methods {
+        let s = with_techniques(scene, hidden, bsdf);
+        let mut spp = 4u32;
+        loop {
+            let opts = RenderOptions {
+                model,
+                spp,
+                seed: 17,
+                ..RenderOptions::from_scene(&s)
+            };
+            let (d, t) = render(&s, &opts)?;
+            push(label, spp as f64, &d, t);
+            if t > budget || spp >= 1 << 20 {
+                break;
+            }
+            spp *= 2;
+        }
+    }
+    Ok(out)
+}
+
+/// The CSV of all points.
+pub fn csv(points: &[Point]) -> String {
+    let mut s = String::from("scene,method,setting,seconds,error,raw_error\n");
+    for p in points {
+        s += &format!(
+            "{},{},{},{:.6},{:.6e},{:.6e}\n",
+            p.scene, p.method, p.setting, p.seconds, p.error, p.raw_error
+        );
+    }
+    s
+}
+
+/// Log-log chart, one panel per scene, one line per method.
+pub fn write_png(path: &Path, points: &[Point], scene_names: &[&str]) -> Result<()> {
+    use crate::io::plot::Series;
+    let mut panels = Vec::new();
+    for &scene in scene_names {
+        let mut methods: Vec<&str> = Vec::new();
+        for p in points.iter().filter(|p| p.scene == scene) {
+            if !methods.contains(&p.method.as_str()) {
+                methods.push(&p.method);
+            }
+        }
+        let series = methods
+            .iter()
+            .map(|&m| Series {
+                label: m,
+                points: points
+                    .iter()
+                    .filter(|p| p.scene == scene && p.method == m && p.error > 0.0)
+                    .map(|p| (p.seconds, p.error))
+                    .collect(),
+            })
+            .collect();
+        panels.push((scene.to_string(), series));
+    }
+    crate::io::plot::loglog_panel_chart(
+        path,
+        "Relative L2 error against a converged multi-bounce reference, vs wall-clock time",
+        "seconds (2 cores)",
+        2,
+        &panels,
+    )
+}
+
+/// The first time (s, interpolated in log-log between measured points) at which a
+/// method's error falls to `target`, if it does.
+pub fn time_to(points: &[Point], scene: &str, method: &str, target: f64) -> Option<f64> {
+    let mut pts: Vec<(f64, f64)> = points
+        .iter()
+        .filter(|p| p.scene == scene && p.method == method && p.error > 0.0)
+        .map(|p| (p.seconds, p.error))
+        .collect();
+    pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+    if let Some(first) = pts.first() {
+        if first.1 <= target {
+            return Some(first.0);
+        }
+    }
+    pts.windows(2).find_map(|w| {
+        let ((t0, e0), (t1, e1)) = (w[0], w[1]);
+        (e0 > target && e1 <= target).then(|| {
+            let f = (target.ln() - e0.ln()) / (e1.ln() - e0.ln());
+            (t0.ln() + f * (t1.ln() - t0.ln())).exp()
+        })
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn point(method: &str, seconds: f64, error: f64) -> Point {
+        Point {
+            scene: "s",
+            method: method.into(),
+            setting: 0.0,
+            seconds,
+            error,
+            raw_error: error,
+        }
+    }
+
+    #[test]
+    fn time_to_interpolates_in_log_log_and_says_when_a_target_is_not_reached() {
+        let pts = [
+            point("a", 1.0, 0.1),
+            point("a", 4.0, 0.025),
+            point("b", 2.0, 0.5),
+        ];
+        // Error ∝ t^-1 between the points: 5 % at 2 s.
+        let t = time_to(&pts, "s", "a", 0.05).unwrap();
+        assert!((t - 2.0).abs() < 1e-9, "{t}");
+        assert_eq!(time_to(&pts, "s", "a", 0.2), Some(1.0));
+        assert_eq!(time_to(&pts, "s", "a", 0.01), None);
+        assert_eq!(time_to(&pts, "s", "b", 0.1), None);
+        let c = csv(&pts);
+        assert_eq!(c.lines().count(), 4);
+        assert!(c.starts_with("scene,method,setting,seconds,error,raw_error\n"));
+    }
+}

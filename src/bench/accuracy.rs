@@ -284,6 +284,7 @@ pub fn write_png(path: &Path, points: &[Point], scene_names: &[&str]) -> Result<
         path,
         "Relative L2 error against a converged multi-bounce reference, vs wall-clock time",
         "seconds (2 cores)",
+        "relative L2 error",
         2,
         &panels,
     )

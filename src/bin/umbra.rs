@@ -64,7 +64,7 @@ struct FitCliArgs {
 
 #[derive(clap::Args)]
 struct BenchArgs {
-    /// Which benchmark: tri3, grad, ablation, accuracy.
+    /// Which benchmark: tri3, grad, ablation, accuracy, scaling.
     which: String,
     /// Timed repetitions (median reported).
     #[arg(long, default_value_t = 5)]
@@ -88,6 +88,11 @@ struct BenchArgs {
     /// accuracy: stop a method's curve after a render longer than this (s).
     #[arg(long, default_value_t = 4.0)]
     budget: f64,
+    /// scaling-point: the axis (index into bench::scaling::AXES) and its value.
+    #[arg(long)]
+    axis: Option<usize>,
+    #[arg(long)]
+    value: Option<u32>,
     /// accuracy: scenes (letter, sphere, bunny, corner), comma-separated.
     #[arg(long, default_value = "letter,sphere,bunny,corner")]
     scenes: String,
@@ -340,10 +345,10 @@ fn bench(args: BenchArgs) -> umbra::Result<()> {
     use umbra::bench;
     if !matches!(
         args.which.as_str(),
-        "tri3" | "grad" | "grad-pass" | "ablation" | "accuracy"
+        "tri3" | "grad" | "grad-pass" | "ablation" | "accuracy" | "scaling" | "scaling-point"
     ) {
         return Err(umbra::Error::Invalid(format!(
-            "bench: unknown benchmark '{}' (available: tri3, grad, ablation, accuracy)",
+            "bench: unknown benchmark '{}' (available: tri3, grad, ablation, accuracy, scaling)",
             args.which
         )));
     }
@@ -370,6 +375,17 @@ fn bench(args: BenchArgs) -> umbra::Result<()> {
     }
     if args.which == "accuracy" {
         return pool.install(|| bench_accuracy(&args));
+    }
+    if args.which == "scaling-point" {
+        // Child of `bench scaling`: one render, then its time, peak memory and work.
+        let (s, kb, work) = pool.install(|| {
+            umbra::bench::scaling::point(args.axis.unwrap_or(0), args.value.unwrap_or(8))
+        })?;
+        println!("{s} {kb} {work}");
+        return Ok(());
+    }
+    if args.which == "scaling" {
+        return bench_scaling(&args);
     }
     pool.install(|| {
         let threads = rayon::current_num_threads();
@@ -523,6 +539,114 @@ fn bench_accuracy(args: &BenchArgs) -> umbra::Result<()> {
             }
         }
     }
+    println!("\n{} and {} written", png.display(), csv.display());
+    Ok(())
+}
+
+/// `umbra bench scaling`: each point in a fresh process (bench::scaling).
+fn bench_scaling(args: &BenchArgs) -> umbra::Result<()> {
+    use umbra::bench::scaling::{exponent, AXES};
+    use umbra::io::plot::Series;
+    let exe = std::env::current_exe().map_err(|e| umbra::Error::Invalid(e.to_string()))?;
+    let mut panels = Vec::new();
+    let mut table = Vec::new();
+    for (axis, (name, values)) in AXES.iter().enumerate() {
+        let mut time = Vec::new();
+        let mut memory = Vec::new();
+        let mut per_work = Vec::new();
+        for &v in values.iter() {
+            let mut cmd = std::process::Command::new(&exe);
+            cmd.args([
+                "bench",
+                "scaling-point",
+                "--axis",
+                &axis.to_string(),
+                "--value",
+                &v.to_string(),
+            ]);
+            if let Some(t) = args.threads {
+                cmd.args(["--threads", &t.to_string()]);
+            }
+            let out = cmd
+                .output()
+                .map_err(|e| umbra::Error::Invalid(format!("bench scaling: {e}")))?;
+            let text = String::from_utf8_lossy(&out.stdout);
+            let f: Vec<f64> = text
+                .split_whitespace()
+                .filter_map(|w| w.parse().ok())
+                .collect();
+            if !out.status.success() || f.len() != 3 {
+                return Err(umbra::Error::Invalid(format!(
+                    "bench scaling: point {name} = {v} failed: {}",
+                    String::from_utf8_lossy(&out.stderr)
+                )));
+            }
+            // The natural size: measurements for the scan axis, else the value itself.
+            let size = if axis == 0 { (v * v) as f64 } else { v as f64 };
+            eprintln!(
+                "bench scaling: {name} = {v}: {:.3} s, {:.0} MB",
+                f[0],
+                f[1] / 1024.0
+            );
+            time.push((size, f[0]));
+            per_work.push((f[2], f[0]));
+            memory.push((size, f[1] / 1024.0));
+            table.push(format!(
+                "| {name} | {v} | {:.0} | {:.4} | {:.1} |",
+                f[2],
+                f[0],
+                f[1] / 1024.0
+            ));
+        }
+        let (kt, km) = (exponent(&time), exponent(&memory));
+        let size_name = if axis == 0 {
+            "measurements (side²)"
+        } else {
+            name
+        };
+        println!(
+            "{name}: time ∝ {size_name}^{kt:.2} (∝ work^{:.2}, work = {}), peak memory ∝ {size_name}^{km:.2}",
+            exponent(&per_work),
+            if axis == 3 { "samples" } else { "(measurement, sub-triangle) pairs" }
+        );
+        panels.push((
+            format!("time vs {size_name} (fitted exponent {kt:.2})"),
+            vec![Series {
+                label: "render s",
+                points: time,
+            }],
+        ));
+        panels.push((
+            format!("peak memory (MB) vs {size_name} (exponent {km:.2})"),
+            vec![Series {
+                label: "peak RSS MB",
+                points: memory,
+            }],
+        ));
+    }
+    println!("\n| axis | value | work (pairs or samples) | render s | peak RSS MB |");
+    println!("|---|---|---|---|---|");
+    for row in &table {
+        println!("{row}");
+    }
+    std::fs::create_dir_all(&args.out).map_err(|e| umbra::Error::io(&args.out, e))?;
+    let png = args.out.join("scaling.png");
+    umbra::io::plot::loglog_panel_chart(
+        &png,
+        "Scaling: one axis at a time from the base case (tri3; path for spp)",
+        "size",
+        "",
+        2,
+        &panels,
+    )?;
+    let csv = args.out.join("scaling.csv");
+    let mut text = String::from("axis,value,work,seconds,peak_rss_mb\n");
+    for row in &table {
+        let cells: Vec<&str> = row.trim_matches('|').split('|').map(str::trim).collect();
+        text += &cells.join(",");
+        text.push('\n');
+    }
+    std::fs::write(&csv, text).map_err(|e| umbra::Error::io(&csv, e))?;
     println!("\n{} and {} written", png.display(), csv.display());
     Ok(())
 }

@@ -244,6 +244,7 @@ pub fn loglog_panel_chart(
     path: &Path,
     title: &str,
     x_label: &str,
+    y_label: &str,
     columns: usize,
     panels: &[(String, Vec<Series>)],
 ) -> Result<()> {
@@ -284,7 +285,7 @@ pub fn loglog_panel_chart(
         chart
             .configure_mesh()
             .x_desc(x_label)
-            .y_desc("relative L2 error")
+            .y_desc(y_label)
             .label_style((FAMILY, 12))
             .x_label_formatter(&|v| format!("{v:.0e}"))
             .y_label_formatter(&|v| format!("{v:.0e}"))

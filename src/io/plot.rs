@@ -20,6 +20,36 @@ fn register_font() {
     });
 }
 
+/// `(x min, x max, y min, y max)` of the points.
+fn bounds(pts: &[&(f64, f64)]) -> (f64, f64, f64, f64) {
+    pts.iter().fold(
+        (f64::MAX, f64::MIN, f64::MAX, f64::MIN),
+        |(a, b, c, d), p| (a.min(p.0), b.max(p.0), c.min(p.1), d.max(p.1)),
+    )
+}
+
+/// Draws a chart's legend box at `position` in `size`-point type.
+fn legend<'a, DB, CT>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    path: &Path,
+    position: SeriesLabelPosition,
+    size: u32,
+) -> Result<()>
+where
+    DB: DrawingBackend + 'a,
+    CT: CoordTranslate,
+    DB::ErrorType: 'static,
+{
+    chart
+        .configure_series_labels()
+        .position(position)
+        .label_font((FAMILY, size))
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| err(path, e))
+}
+
 fn err(path: &Path, e: impl std::fmt::Display) -> Error {
     Error::Invalid(format!("{}: cannot draw the chart: {e}", path.display()))
 }
@@ -49,12 +79,7 @@ pub fn log_chart(
     if pts.is_empty() {
         return Err(err(path, "no positive finite values to plot"));
     }
-    let (x0, x1) = pts
-        .iter()
-        .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
-    let (y0, y1) = pts
-        .iter()
-        .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+    let (x0, x1, y0, y1) = bounds(&pts);
     let x1 = if x1 > x0 { x1 } else { x0 + 1.0 };
     let (y0, y1) = (y0 / 1.5, if y1 > y0 { y1 * 1.5 } else { y0 * 2.0 });
     let root = BitMapBackend::new(path, (900, 560)).into_drawing_area();
@@ -93,13 +118,7 @@ pub fn log_chart(
             .label(s.label)
             .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2)));
     }
-    chart
-        .configure_series_labels()
-        .label_font((FAMILY, 14))
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|e| err(path, e))?;
+    legend(&mut chart, path, SeriesLabelPosition::MiddleRight, 14)?;
     root.present().map_err(|e| err(path, e))?;
     Ok(())
 }
@@ -176,12 +195,7 @@ pub fn panel_chart(
     if pts.is_empty() {
         return Err(err(path, "no finite values to plot"));
     }
-    let (x0, x1) = pts
-        .iter()
-        .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
-    let (y0, y1) = pts
-        .iter()
-        .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+    let (x0, x1, y0, y1) = bounds(&pts);
     let x1 = if x1 > x0 { x1 } else { x0 + 1.0 };
     let pad = 0.05 * (y1 - y0).max(f64::MIN_POSITIVE);
     let (y0, y1) = (y0.min(0.0) - pad, y1 + pad);
@@ -226,13 +240,7 @@ pub fn panel_chart(
                     PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2))
                 });
         }
-        chart
-            .configure_series_labels()
-            .label_font((FAMILY, 12))
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(|e| err(path, e))?;
+        legend(&mut chart, path, SeriesLabelPosition::MiddleRight, 12)?;
     }
     root.present().map_err(|e| err(path, e))?;
     Ok(())
@@ -267,12 +275,7 @@ pub fn loglog_panel_chart(
         if pts.is_empty() {
             continue;
         }
-        let (x0, x1) = pts
-            .iter()
-            .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
-        let (y0, y1) = pts
-            .iter()
-            .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+        let (x0, x1, y0, y1) = bounds(&pts);
         let (x0, x1) = (x0 / 1.5, x1 * 1.5);
         let (y0, y1) = (y0 / 1.5, y1 * 1.5);
         let mut chart = ChartBuilder::on(area)
@@ -305,14 +308,7 @@ pub fn loglog_panel_chart(
                 .draw_series(pts.iter().map(|&p| Circle::new(p, 3, colour.filled())))
                 .map_err(|e| err(path, e))?;
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::LowerLeft)
-            .label_font((FAMILY, 11))
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(|e| err(path, e))?;
+        legend(&mut chart, path, SeriesLabelPosition::LowerLeft, 11)?;
     }
     root.present().map_err(|e| err(path, e))?;
     Ok(())

@@ -2,6 +2,7 @@
 //!
 //! - [`objective`]: the renderer as an `optim::MeshObjective` (scale-free relative L2,
 //!   path-replay gradients);
+//! - [`intensity`]: the closed-form scale and background of the loss;
 //! - [`time_offset`]: the comparison through the detector's jitter and an unknown
 //!   time offset;
 //! - [`resolution`]: the coarse-to-fine schedule's downsampled measurement and scene;
@@ -13,6 +14,7 @@
 //!   checkpoints).
 
 pub mod init;
+pub mod intensity;
 pub mod metrics;
 pub mod objective;
 pub mod reconstruction;
@@ -20,7 +22,8 @@ pub mod resolution;
 pub mod run;
 pub mod time_offset;
 
-pub use objective::{intensity_l2, Background, Intensity, IntensityModel, UmbraObjective};
+pub use intensity::{intensity_l2, Background, Intensity, IntensityModel};
+pub use objective::UmbraObjective;
 
 use crate::geometry::mesh::TriMesh;
 

@@ -13,9 +13,8 @@
 //! - `checkpoint/`: the resumable state (see `optim::fit`).
 
 use super::init::{depth_from_data, plane, sphere};
-use super::objective::{
-    first_fitted_bin, zero_leading_bins, Intensity, IntensityModel, UmbraObjective,
-};
+use super::intensity::{Intensity, IntensityModel};
+use super::objective::{first_fitted_bin, zero_leading_bins, UmbraObjective};
 use super::reconstruction::{backprojection_mesh, write_reconstruction_png};
 use super::resolution::{at_resolution, ScanReduce};
 use crate::error::{Error, Result};

@@ -5,7 +5,7 @@
 //!
 //! `L(θ) = min_{|δ| ≤ δ_max} min_{s, b} ‖s Z K_δ H(θ) + b − Z M‖² / ‖Z M‖²`
 //!
-//! (the inner minimum in closed form, [`super::objective::intensity_l2`]). Real captures
+//! (the inner minimum in closed form, [`super::intensity::intensity_l2`]). Real captures
 //! put time zero where the calibration says, which is off by a few millimetres of OPL
 //! (the LCT data are "rectified" to the wall); a fit that cannot shift moves the whole
 //! surface instead. `δ` is found per evaluation by a grid over `[−δ_max, δ_max]` (steps
@@ -15,7 +15,8 @@
 //! The shift is smooth only through a smooth kernel: it needs `σ > 0` (with box bins the
 //! loss is piecewise constant in `δ`, the time-shift gradient lost; docs/FITTING.md).
 
-use super::objective::{intensity_l2, zero_leading_bins, Intensity, IntensityModel};
+use super::intensity::{intensity_l2, Intensity, IntensityModel};
+use super::objective::zero_leading_bins;
 use crate::film::jitter::JitterKernel;
 
 /// What [`compare`] returns.

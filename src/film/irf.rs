@@ -60,18 +60,37 @@ impl Irf {
     /// The taps at bin width `width`: `C((j + 1) w) − C(j w)`, `C` the cumulative sum
     /// interpolated linearly between this IRF's bin edges.
     pub fn taps_at(&self, width: f64) -> Vec<f64> {
+        // cumulative[i] = Σ_{k < i} taps[k]: C at this IRF's bin edge i.
+        let mut cumulative = Vec::with_capacity(self.taps.len() + 1);
+        cumulative.push(0.0);
+        for t in &self.taps {
+            cumulative.push(cumulative.last().copied().unwrap_or(0.0) + t);
+        }
+        let total = *cumulative.last().unwrap_or(&0.0);
         let cdf = |x: f64| -> f64 {
-            let pos = x / self.bin_width;
-            let whole = pos.floor().max(0.0) as usize;
-            let below: f64 = self.taps.iter().take(whole).sum();
-            let frac = pos - whole as f64;
-            below + frac * self.taps.get(whole).copied().unwrap_or(0.0)
+            let pos = (x / self.bin_width).max(0.0);
+            let whole = pos.floor() as usize;
+            match (cumulative.get(whole), self.taps.get(whole)) {
+                (Some(below), Some(tap)) => below + (pos - whole as f64) * tap,
+                _ => total,
+            }
         };
         let span = self.taps.len() as f64 * self.bin_width;
         let n = (span / width).ceil().max(1.0) as usize;
         (0..n)
             .map(|j| cdf((j + 1) as f64 * width) - cdf(j as f64 * width))
             .collect()
+    }
+
+    /// This IRF at bin width `width` (unchanged if it already is).
+    pub fn at_width(&self, width: f64) -> Irf {
+        if (width - self.bin_width).abs() <= 1e-12 * width {
+            return self.clone();
+        }
+        Irf {
+            bin_width: width,
+            taps: self.taps_at(width),
+        }
     }
 }
 

@@ -133,7 +133,10 @@ impl UmbraObjective {
             intensity: self.intensity,
             sigma_bins: self.jitter_opl / width,
             offset_max_bins: self.time_offset_max_opl / width,
-            irf: self.irf.as_ref().map_or(Vec::new(), |k| k.taps_at(width)),
+            irf: self
+                .irf
+                .as_ref()
+                .map_or(Vec::new(), |k| k.at_width(width).taps),
         }
     }
 

@@ -1,5 +1,6 @@
-//! The comparison of a render with the measurement through the detector's timing jitter
-//! and an optional unknown time offset `δ` (OPL, m): with `K_δ` the jitter kernel
+//! The comparison of a render with the measurement through the detector's response (a
+//! timing-jitter Gaussian, or a measured IRF, [`crate::film::irf`]) and, with the
+//! Gaussian, an optional unknown time offset `δ` (OPL, m): with `K_δ` the jitter kernel
 //! shifted by `δ` ([`crate::film::jitter::JitterKernel`]) and `Z` the mask of the fitted
 //! bins,
 //!
@@ -56,27 +57,31 @@ impl Comparator {
         }
     }
 
+    /// `Z K_δ H`: the render as compared at shift `shift` (bins), and the kernel.
+    fn fitted(&self, raw: &[f32], shift: f64) -> (Vec<f32>, JitterKernel) {
+        let kernel = self.kernel(shift);
+        let mut fitted = raw.to_vec();
+        kernel.apply(&mut fitted, self.bins);
+        zero_leading_bins(&mut fitted, self.bins, self.first_bin);
+        (fitted, kernel)
+    }
+
     fn at(
         &self,
         raw: &[f32],
         measured: &[f32],
         shift: f64,
     ) -> (f64, Vec<f32>, Intensity, Vec<f32>) {
-        let kernel = self.kernel(shift);
-        let mut fitted = raw.to_vec();
-        kernel.apply(&mut fitted, self.bins);
-        zero_leading_bins(&mut fitted, self.bins, self.first_bin);
+        let (fitted, kernel) = self.fitted(raw, shift);
         let (loss, mut adjoint, intensity) =
             intensity_l2(&fitted, measured, self.bins, self.first_bin, self.intensity);
         kernel.apply_transpose(&mut adjoint, self.bins);
         (loss, adjoint, intensity, fitted)
     }
 
+    /// The loss alone at `shift` (the offset search's trials: no adjoint).
     fn loss_at(&self, raw: &[f32], measured: &[f32], shift: f64) -> f64 {
-        let kernel = self.kernel(shift);
-        let mut fitted = raw.to_vec();
-        kernel.apply(&mut fitted, self.bins);
-        zero_leading_bins(&mut fitted, self.bins, self.first_bin);
+        let (fitted, _) = self.fitted(raw, shift);
         intensity_l2(&fitted, measured, self.bins, self.first_bin, self.intensity).0
     }
 

@@ -1,0 +1,347 @@
+//! `umbra bench`: the built-in benchmarks (`umbra::bench`) behind the command line:
+//! `tri3` (speed and error against subdivision), `grad` (adjoint against forward time and
+//! memory), `ablation`, `accuracy` (error against time), `scaling` (time and memory
+//! against size, a fresh process per point).
+
+use super::grad_cli::bench_grad;
+use std::path::PathBuf;
+use umbra::scene::Model;
+
+#[derive(clap::Args)]
+pub struct BenchArgs {
+    /// Which benchmark: tri3, grad, ablation, accuracy, scaling.
+    pub which: String,
+    /// Timed repetitions (median reported).
+    #[arg(long, default_value_t = 5)]
+    pub reps: usize,
+    /// Samples per seed of the mc3 reference of the error table (0: speed only, no table).
+    #[arg(long, default_value_t = 1 << 19)]
+    pub reference_spp: u32,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// grad-pass: the model.
+    #[arg(long)]
+    pub model: Option<String>,
+    /// grad-pass / ablation: samples per measurement (ablation: 32768, reference 128x).
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// ablation / accuracy: directory for the PNG and CSV (and accuracy's cached
+    /// references).
+    #[arg(long, default_value = "docs")]
+    pub out: PathBuf,
+    /// accuracy: stop a method's curve after a render longer than this (s).
+    #[arg(long, default_value_t = 4.0)]
+    pub budget: f64,
+    /// scaling-point: the axis (index into bench::scaling::AXES) and its value.
+    #[arg(long)]
+    pub axis: Option<usize>,
+    #[arg(long)]
+    pub value: Option<u32>,
+    /// accuracy: scenes (letter, sphere, bunny, corner), comma-separated.
+    #[arg(long, default_value = "letter,sphere,bunny,corner")]
+    pub scenes: String,
+}
+
+pub fn bench(args: BenchArgs) -> umbra::Result<()> {
+    use umbra::bench;
+    if !matches!(
+        args.which.as_str(),
+        "tri3" | "grad" | "grad-pass" | "ablation" | "accuracy" | "scaling" | "scaling-point"
+    ) {
+        return Err(umbra::Error::Invalid(format!(
+            "bench: unknown benchmark '{}' (available: tri3, grad, ablation, accuracy, scaling)",
+            args.which
+        )));
+    }
+    let mut b = rayon::ThreadPoolBuilder::new();
+    if let Some(t) = args.threads {
+        b = b.num_threads(t.max(1));
+    }
+    let pool = b
+        .build()
+        .map_err(|e| umbra::Error::Invalid(format!("thread pool: {e}")))?;
+    if args.which == "grad-pass" {
+        // Child of `bench grad`: one adjoint pass, then its peak memory.
+        let model = Model::parse(args.model.as_deref().unwrap_or("mc3"))
+            .ok_or_else(|| umbra::Error::Invalid("--model: tri3 or mc3".into()))?;
+        pool.install(|| bench::grad_pass(model, args.spp.unwrap_or(1)))?;
+        println!("{}", bench::peak_rss_kb().unwrap_or(0));
+        return Ok(());
+    }
+    if args.which == "grad" {
+        return pool.install(|| bench_grad(&args));
+    }
+    if args.which == "ablation" {
+        return pool.install(|| bench_ablation(&args));
+    }
+    if args.which == "accuracy" {
+        return pool.install(|| bench_accuracy(&args));
+    }
+    if args.which == "scaling-point" {
+        // Child of `bench scaling`: one render, then its time, peak memory and work.
+        let (s, kb, work) = pool.install(|| {
+            umbra::bench::scaling::point(args.axis.unwrap_or(0), args.value.unwrap_or(8))
+        })?;
+        println!("{s} {kb} {work}");
+        return Ok(());
+    }
+    if args.which == "scaling" {
+        return bench_scaling(&args);
+    }
+    pool.install(|| {
+        let threads = rayon::current_num_threads();
+        let scene = bench::tri3_speed_scene()?;
+        println!("## tri3 forward pass ({threads} threads)\n");
+        println!("Confocal 64 x 64 scan, 512 bins of 4 mm, wavy sheet of {} triangles at 0.8 m, visibility none, box bins.\n", scene.total_hidden_triangles());
+        println!("| subdivision | sub-triangles | setup s | render s (median of {}) | M pairs/s |", args.reps);
+        println!("|---|---|---|---|---|");
+        let s = umbra::scene::DEFAULT_SUBDIVISION;
+        let t = bench::tri3_speed(&scene, args.reps, s)?;
+        println!(
+            "| {s} | {} | {:.3} | {:.3} | {:.1} |",
+            t.subtriangles,
+            t.setup_seconds,
+            t.median(),
+            t.mpairs_per_second()
+        );
+        if args.reference_spp == 0 {
+            return Ok(());
+        }
+        println!("\n## tri3 error against mc3 as the subdivision threshold falls\n");
+        let thresholds = [4.0, 1.0, 0.5, 0.3, 0.15, 0.08, 0.04];
+        for (name, scene) in bench::error_table_scenes()? {
+            let (noise, rows) = bench::tri3_error_table(&scene, args.reference_spp, &thresholds)?;
+            println!(
+                "{name}, confocal {}x{} scan, {} bins of {} mm; mc3 reference 2 x {} spp, its own noise {:.3} %:\n",
+                scene.scan.nx,
+                scene.scan.ny,
+                scene.film.temporal_bins,
+                scene.film.bin_width_opl * 1000.0,
+                args.reference_spp,
+                100.0 * noise
+            );
+            println!("| subdivision | sub-triangles | render s | rel. L2 vs mc3 | same, reference noise removed |");
+            println!("|---|---|---|---|---|");
+            for r in rows {
+                println!(
+                    "| {}{} | {} | {:.4} | {:.3} % | {:.3} % |",
+                    r.subdivision,
+                    if r.subdivision == umbra::scene::DEFAULT_SUBDIVISION { " (default)" } else { "" },
+                    r.subtriangles,
+                    r.seconds,
+                    100.0 * r.error,
+                    100.0 * r.error_without_noise(noise)
+                );
+            }
+            println!();
+        }
+        Ok(())
+    })
+}
+
+/// `umbra bench ablation`: the seed paper's sampling-technique comparison (bench::ablation).
+fn bench_ablation(args: &BenchArgs) -> umbra::Result<()> {
+    use umbra::bench::ablation;
+    let spp = args.spp.unwrap_or(32768).max(1);
+    let factor = 128; // the reference's noise: 1/sqrt(128) of the best variant's
+    let scene = ablation::ablation_scene()?;
+    let a = ablation::run(&scene, spp, factor)?;
+    std::fs::create_dir_all(&args.out).map_err(|e| umbra::Error::io(&args.out, e))?;
+    let csv = args.out.join("ablation.csv");
+    std::fs::write(&csv, a.csv()).map_err(|e| umbra::Error::io(&csv, e))?;
+    let png = args.out.join("ablation.png");
+    a.write_png(&png)?;
+    println!(
+        "## Sampling techniques at equal samples ({spp} spp; reference {} spp, all techniques)\n",
+        a.reference_spp
+    );
+    println!("Concave corner 0.8 m from the wall, one confocal scan point, laser spot of 5 cm radius, up to 6 bounces; BSDF sampling on in every variant (MIS).\n");
+    println!(
+        "| variant | laser sampling | hidden-geometry sampling | rel. L2 vs reference | time s |"
+    );
+    println!("|---|---|---|---|---|");
+    for v in &a.variants {
+        println!(
+            "| {} | {} | {} | {:.2} % | {:.3} |",
+            v.label,
+            if v.laser_sampling { "on" } else { "off" },
+            if v.hidden_geometry_sampling {
+                "on"
+            } else {
+                "off"
+            },
+            100.0 * v.error,
+            v.seconds
+        );
+    }
+    println!("\n{} and {} written", png.display(), csv.display());
+    Ok(())
+}
+
+/// `umbra bench accuracy`: error against time for every method (bench::accuracy).
+fn bench_accuracy(args: &BenchArgs) -> umbra::Result<()> {
+    use umbra::bench::accuracy;
+    let wanted: Vec<&str> = args.scenes.split(',').map(str::trim).collect();
+    let all = accuracy::scenes()?;
+    if let Some(bad) = wanted.iter().find(|w| !all.iter().any(|(n, _)| n == *w)) {
+        return Err(umbra::Error::Invalid(format!(
+            "--scenes: '{bad}' is not one of letter, sphere, bunny, corner"
+        )));
+    }
+    let reference_spp = args.reference_spp.max(2);
+    let cache = args.out.join("accuracy_cache");
+    let mut points = Vec::new();
+    let mut names = Vec::new();
+    for (name, scene) in all.iter().filter(|(n, _)| wanted.contains(n)) {
+        eprintln!(
+            "bench accuracy: {name}: reference ({reference_spp} spp, cached in {})",
+            cache.display()
+        );
+        let r = accuracy::reference(name, scene, reference_spp, &cache)?;
+        eprintln!(
+            "bench accuracy: {name}: reference error {:.3} %; curves",
+            100.0 * r.error
+        );
+        points.extend(accuracy::curves(name, scene, &r, args.budget)?);
+        names.push(*name);
+        println!(
+            "{name}: reference {reference_spp} spp, its own error {:.3} %",
+            100.0 * r.error
+        );
+    }
+    std::fs::create_dir_all(&args.out).map_err(|e| umbra::Error::io(&args.out, e))?;
+    let csv = args.out.join("accuracy.csv");
+    std::fs::write(&csv, accuracy::csv(&points)).map_err(|e| umbra::Error::io(&csv, e))?;
+    let png = args.out.join("accuracy.png");
+    accuracy::write_png(&png, &points, &names)?;
+    let mut methods: Vec<String> = Vec::new();
+    for p in &points {
+        if !methods.contains(&p.method) {
+            methods.push(p.method.clone());
+        }
+    }
+    println!("\n| scene | method | time to 5 % | time to 1 % | lowest error (its time) |");
+    println!("|---|---|---|---|---|");
+    for scene in &names {
+        for m in &methods {
+            let fmt = |t: Option<f64>| t.map_or("not reached".to_string(), |t| format!("{t:.3} s"));
+            let best = points
+                .iter()
+                .filter(|p| p.scene == *scene && &p.method == m)
+                .min_by(|a, b| a.error.total_cmp(&b.error));
+            if let Some(b) = best {
+                println!(
+                    "| {scene} | {m} | {} | {} | {:.2} % ({:.3} s) |",
+                    fmt(accuracy::time_to(&points, scene, m, 0.05)),
+                    fmt(accuracy::time_to(&points, scene, m, 0.01)),
+                    100.0 * b.error,
+                    b.seconds
+                );
+            }
+        }
+    }
+    println!("\n{} and {} written", png.display(), csv.display());
+    Ok(())
+}
+
+/// `umbra bench scaling`: each point in a fresh process (bench::scaling).
+fn bench_scaling(args: &BenchArgs) -> umbra::Result<()> {
+    use umbra::bench::scaling::{exponent, AXES};
+    use umbra::io::plot::Series;
+    let exe = std::env::current_exe().map_err(|e| umbra::Error::Invalid(e.to_string()))?;
+    let mut panels = Vec::new();
+    let mut table = Vec::new();
+    for (axis, (name, values)) in AXES.iter().enumerate() {
+        let mut time = Vec::new();
+        let mut memory = Vec::new();
+        let mut per_work = Vec::new();
+        for &v in values.iter() {
+            let mut cmd = std::process::Command::new(&exe);
+            cmd.args([
+                "bench",
+                "scaling-point",
+                "--axis",
+                &axis.to_string(),
+                "--value",
+                &v.to_string(),
+            ]);
+            if let Some(t) = args.threads {
+                cmd.args(["--threads", &t.to_string()]);
+            }
+            let out = cmd
+                .output()
+                .map_err(|e| umbra::Error::Invalid(format!("bench scaling: {e}")))?;
+            let text = String::from_utf8_lossy(&out.stdout);
+            let f: Vec<f64> = text
+                .split_whitespace()
+                .filter_map(|w| w.parse().ok())
+                .collect();
+            if !out.status.success() || f.len() != 3 {
+                return Err(umbra::Error::Invalid(format!(
+                    "bench scaling: point {name} = {v} failed: {}",
+                    String::from_utf8_lossy(&out.stderr)
+                )));
+            }
+            // The natural size: measurements for the scan axis, else the value itself.
+            let size = if axis == 0 { (v * v) as f64 } else { v as f64 };
+            eprintln!(
+                "bench scaling: {name} = {v}: {:.3} s, {:.0} MB",
+                f[0],
+                f[1] / 1024.0
+            );
+            time.push((size, f[0]));
+            per_work.push((f[2], f[0]));
+            memory.push((size, f[1] / 1024.0));
+            table.push((*name, v, f[2], f[0], f[1] / 1024.0));
+        }
+        let (kt, km) = (exponent(&time), exponent(&memory));
+        let size_name = if axis == 0 {
+            "measurements (side²)"
+        } else {
+            name
+        };
+        println!(
+            "{name}: time ∝ {size_name}^{kt:.2} (∝ work^{:.2}, work = {}), peak memory ∝ {size_name}^{km:.2}",
+            exponent(&per_work),
+            if axis == 3 { "samples" } else { "(measurement, sub-triangle) pairs" }
+        );
+        panels.push((
+            format!("time vs {size_name} (fitted exponent {kt:.2})"),
+            vec![Series {
+                label: "render s",
+                points: time,
+            }],
+        ));
+        panels.push((
+            format!("peak memory (MB) vs {size_name} (exponent {km:.2})"),
+            vec![Series {
+                label: "peak RSS MB",
+                points: memory,
+            }],
+        ));
+    }
+    println!("\n| axis | value | work (pairs or samples) | render s | peak RSS MB |");
+    println!("|---|---|---|---|---|");
+    for (name, v, work, seconds, mb) in &table {
+        println!("| {name} | {v} | {work:.0} | {seconds:.4} | {mb:.1} |");
+    }
+    std::fs::create_dir_all(&args.out).map_err(|e| umbra::Error::io(&args.out, e))?;
+    let png = args.out.join("scaling.png");
+    umbra::io::plot::loglog_panel_chart(
+        &png,
+        "Scaling: one axis at a time from the base case (tri3; path for spp)",
+        "size",
+        "",
+        2,
+        &panels,
+    )?;
+    let csv = args.out.join("scaling.csv");
+    let mut text = String::from("axis,value,work,seconds,peak_rss_mb\n");
+    for (name, v, work, seconds, mb) in &table {
+        text += &format!("{name},{v},{work:.0},{seconds:.6},{mb:.1}\n");
+    }
+    std::fs::write(&csv, text).map_err(|e| umbra::Error::io(&csv, e))?;
+    println!("\n{} and {} written", png.display(), csv.display());
+    Ok(())
+}

@@ -11,6 +11,7 @@
 //! same quantity), up to 6 bounces. Error: relative L2 over the bins against the
 //! reference (all techniques at `reference_factor` times the samples, other seeds).
 
+use super::with_techniques;
 use crate::error::Result;
 use crate::geometry::mesh::TriMesh;
 use crate::geometry::SceneGeometry;
@@ -80,15 +81,6 @@ pub struct Ablation {
     pub variants: Vec<Variant>,
 }
 
-fn with_techniques(scene: &Scene, laser: bool, hidden: bool) -> Scene {
-    let mut s = scene.clone();
-    let t = &mut s.render.techniques;
-    t.laser_sampling = laser;
-    t.hidden_geometry_sampling = hidden;
-    t.bsdf_sampling = true;
-    s
-}
-
 fn render_mean(scene: &Scene, spp: u32, seeds: std::ops::Range<u64>) -> Result<Vec<f32>> {
     let geom = SceneGeometry::build(scene);
     let n = seeds.end - seeds.start;
@@ -114,7 +106,7 @@ fn render_mean(scene: &Scene, spp: u32, seeds: std::ops::Range<u64>) -> Result<V
 /// Runs the ablation at `spp` per variant, the reference at `reference_factor` x `spp`
 /// (all techniques, seeds disjoint from the variants').
 pub fn run(scene: &Scene, spp: u32, reference_factor: u32) -> Result<Ablation> {
-    let all = with_techniques(scene, true, true);
+    let all = with_techniques(scene, true, true, true);
     let factor = reference_factor.max(1) as u64;
     let reference = render_mean(&all, spp, 1000..1000 + factor)?;
     let variants = [
@@ -125,7 +117,7 @@ pub fn run(scene: &Scene, spp: u32, reference_factor: u32) -> Result<Ablation> {
     ]
     .into_iter()
     .map(|(label, laser, hidden)| {
-        let s = with_techniques(scene, laser, hidden);
+        let s = with_techniques(scene, laser, hidden, true);
         let start = Instant::now();
         let transient = render_mean(&s, spp, 0..1)?;
         let seconds = start.elapsed().as_secs_f64();

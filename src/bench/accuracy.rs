@@ -24,7 +24,7 @@
 //! bunny-like mesh of the recovery studies (5120 triangles), and a concave corner (two
 //! plates at right angles, interreflections).
 
-use super::rel_l2;
+use super::{rel_l2, with_techniques};
 use crate::error::{Error, Result};
 use crate::geometry::mesh::TriMesh;
 use crate::geometry::shapes::icosphere;
@@ -123,24 +123,29 @@ fn render(scene: &Scene, opts: &RenderOptions) -> Result<(Vec<f32>, f64)> {
     Ok((t.data, start.elapsed().as_secs_f64()))
 }
 
-fn with_techniques(scene: &Scene, hidden: bool, bsdf: bool) -> Scene {
-    let mut s = scene.clone();
-    let t = &mut s.render.techniques;
-    t.laser_sampling = true;
-    t.hidden_geometry_sampling = hidden;
-    t.bsdf_sampling = bsdf;
-    s
+/// A 64-bit FNV-1a hash of the scene's full description: the cache key, so a changed
+/// scene never reads an old reference.
+fn scene_key(scene: &Scene) -> u64 {
+    format!("{scene:?}")
+        .bytes()
+        .fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
+            (h ^ b as u64).wrapping_mul(0x100_0000_01b3)
+        })
 }
 
-/// The reference of `scene` at `spp`, from `cache` if a file for it is there.
+/// The reference of `scene` at `spp`, from `cache` if a file for it (same scene, same
+/// spp) is there.
 pub fn reference(name: &str, scene: &Scene, spp: u32, cache: &Path) -> Result<Reference> {
-    let path = cache.join(format!("reference_{name}_{spp}.npy"));
+    let path = cache.join(format!(
+        "reference_{name}_{spp}_{:016x}.npy",
+        scene_key(scene)
+    ));
     let halves = if path.is_file() {
         let t = crate::io::read_npy(&path)?;
         let n = t.data.len() / 2;
         (t.data[..n].to_vec(), t.data[n..].to_vec())
     } else {
-        let all = with_techniques(scene, true, true);
+        let all = with_techniques(scene, true, true, true);
         let half = |seed| {
             render(
                 &all,
@@ -224,7 +229,7 @@ pub fn curves(name: &'static str, scene: &Scene, r: &Reference, budget: f64) -> 
         ),
     ];
     for (label, model, hidden, bsdf) in methods {
-        let s = with_techniques(scene, hidden, bsdf);
+        let s = with_techniques(scene, true, hidden, bsdf);
         let mut spp = 4u32;
         loop {
             let opts = RenderOptions {

@@ -190,6 +190,16 @@ pub fn error_table_scenes() -> Result<Vec<(&'static str, Scene)>> {
     ])
 }
 
+/// `scene` with the path tracer's techniques set (the relay-wall option kept).
+pub fn with_techniques(scene: &Scene, laser: bool, hidden: bool, bsdf: bool) -> Scene {
+    let mut s = scene.clone();
+    let t = &mut s.render.techniques;
+    t.laser_sampling = laser;
+    t.hidden_geometry_sampling = hidden;
+    t.bsdf_sampling = bsdf;
+    s
+}
+
 /// Relative L2 difference `‖a − b‖ / ‖b‖`.
 pub fn rel_l2(a: &[f32], b: &[f32]) -> f64 {
     let d: f64 = a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum();

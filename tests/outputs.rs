@@ -123,3 +123,46 @@ fn cli_auto_says_what_it_chose_and_tri3_runs() {
     assert_eq!(bad.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("--visibility"));
 }
+
+#[test]
+fn cli_warns_when_tri3_stops_subdividing_short_of_the_threshold() {
+    // A 3 m triangle 10 cm from the wall with 2 mm bins asks for 10 levels; tri3 stops at
+    // 8 (tests/stability.rs measures the cost). The CLI must say so; a scene that level 8
+    // satisfies must not warn.
+    let dir = tmp("capped");
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(
+        dir.join("big.obj"),
+        "v -1.5 -1.5 0.1\nv 0 1.6 0.1\nv 1.6 -1.4 0.1\nf 1 2 3\n",
+    )
+    .unwrap();
+    let toml = "capture_type = \"confocal\"\n[wall]\nsize = [2.0, 2.0]\n[laser]\norigin = [0.0, -0.5, 1.0]\n\
+                [scan]\nresolution = [2, 2]\nsize = [0.8, 0.8]\n\
+                [film]\ntemporal_bins = 600\nbin_width_opl = 0.002\nstart_opl = 0.15\nkernel = \"box\"\n\
+                [[objects]]\nfile = \"big.obj\"\n";
+    std::fs::write(dir.join("big.toml"), toml).unwrap();
+    let scene = dir.join("big.toml");
+    let out = tmp("capped.npy");
+    let run = |sub: &str| {
+        let o = umbra(&[
+            "render",
+            scene.to_str().unwrap(),
+            "--model",
+            "tri3",
+            "--subdivision",
+            sub,
+            "-o",
+            out.to_str().unwrap(),
+            "-q",
+            "--no-preview",
+        ]);
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let err = run("0.15");
+    assert!(
+        err.contains("warning: tri3: 1 triangle(s) need more than 8 subdivision levels"),
+        "{err}"
+    );
+    let err = run("1.0");
+    assert!(!err.contains("subdivision levels"), "{err}");
+}

@@ -19,8 +19,11 @@
 //! off at the share of light beyond three bounces: on the concave scene that floor is the
 //! point of the comparison.
 //!
-//! Scenes (confocal 16 x 16 over 1.6 m, 256 bins of 8 mm from OPL 1.4 m, Gaussian kernel
-//! σ = 8 mm): the planar letter T (the default scene's), a sphere (1280 triangles), the
+//! Scenes (confocal 16 x 16 over the whole 1.6 m relay wall, 256 bins of 8 mm from OPL
+//! 1.4 m, Gaussian kernel σ = 8 mm; so that [`export_mitsuba`] writes the same scene for
+//! mitransient, the laser is a projector of irradiance 1, and it stands below the hidden
+//! objects' depth, at (0, −1, 0.5), where no hidden object blocks its beam to a scan point:
+//! mitransient traces that beam, Umbra does not model the visible legs): the planar letter T (the default scene's), a sphere (1280 triangles), the
 //! bunny-like mesh of the recovery studies (5120 triangles), and a concave corner (two
 //! plates at right angles, interreflections).
 
@@ -29,7 +32,8 @@ use crate::error::{Error, Result};
 use crate::geometry::mesh::TriMesh;
 use crate::geometry::shapes::icosphere;
 use crate::geometry::SceneGeometry;
-use crate::scene::{toml_format, Model, Scene, Visibility};
+use crate::scene::mitsuba_xml::write::write as write_mitsuba;
+use crate::scene::{toml_format, FilmSpec, KernelSpec, Model, Scene, Visibility};
 use crate::transport::{RenderOptions, Renderer};
 use glam::Vec3;
 use std::path::Path;
@@ -41,15 +45,16 @@ const CORNER: &str = "v -0.3 -0.25 1.0\nv 0.3 -0.25 1.0\nv 0.3 0.25 1.0\nv -0.3 
                       v 0.3 -0.25 0.6\nv 0.3 0.25 0.6\n\
                       f 1 4 3 2\nf 2 3 6 5\n";
 
-fn scene_with(mesh: TriMesh, translate: [f32; 3], two_sided: bool) -> Result<Scene> {
+pub(crate) fn scene_with(mesh: TriMesh, translate: [f32; 3], two_sided: bool) -> Result<Scene> {
     let toml = format!(
         r#"
 capture_type = "confocal"
 [wall]
-size = [2.0, 2.0]
+size = [1.6, 1.6]
 albedo = 0.8
 [laser]
-origin = [0.0, -0.5, 1.5]
+origin = [0.0, -1.0, 0.5]
+irradiance = 1.0
 [scan]
 resolution = [16, 16]
 size = [1.6, 1.6]
@@ -114,6 +119,8 @@ pub struct Point {
 pub struct Reference {
     pub data: Vec<f32>,
     pub error: f64,
+    /// The cache file: both halves, shape (2, measurements · bins).
+    pub path: std::path::PathBuf,
 }
 
 fn render(scene: &Scene, opts: &RenderOptions) -> Result<(Vec<f32>, f64)> {
@@ -125,7 +132,7 @@ fn render(scene: &Scene, opts: &RenderOptions) -> Result<(Vec<f32>, f64)> {
 
 /// A 64-bit FNV-1a hash of the scene's full description: the cache key, so a changed
 /// scene never reads an old reference.
-fn scene_key(scene: &Scene) -> u64 {
+pub(crate) fn scene_key(scene: &Scene) -> u64 {
     format!("{scene:?}")
         .bytes()
         .fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
@@ -177,7 +184,103 @@ pub fn reference(name: &str, scene: &Scene, spp: u32, cache: &Path) -> Result<Re
         .collect();
     // Each half has relative noise e_h, their difference √2 e_h, the mean e_h / √2.
     let error = 0.5 * rel_l2(&halves.0, &halves.1);
-    Ok(Reference { data, error })
+    Ok(Reference { data, error, path })
+}
+
+/// Writes `scene` as mitransient renders it in this bench (`<name>_3b.xml`: three
+/// bounces, `<name>_mb.xml`: the scene's bounces; laser and hidden-geometry sampling,
+/// mitransient's techniques) and `<name>.toml`, what the Python suite
+/// (`python/bench/bench_accuracy_mitransient.py`) needs to compare it with `r`.
+///
+/// mitransient 1.3.1 bins with a box only, so the files ask for box bins `factor` times
+/// finer than the scene's, over its window widened by 4σ on each side; the suite
+/// integrates them against the Gaussian, taking the OPL as uniform within a fine bin (a
+/// bias of order (w/factor)²/σ², which the suite measures with `tri3`).
+pub fn export_mitsuba(
+    name: &str,
+    scene: &Scene,
+    r: &Reference,
+    dir: &Path,
+    factor: u32,
+) -> Result<()> {
+    let KernelSpec::Gaussian { sigma_opl } = scene.film.kernel else {
+        return Err(Error::Invalid(format!(
+            "{name}: the accuracy scenes have Gaussian kernels"
+        )));
+    };
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let f = &scene.film;
+    let fine_width = f.bin_width_opl / factor as f32;
+    let pad = (4.0 * sigma_opl / fine_width).ceil() as u32;
+    let mut s = with_techniques(scene, true, true, false);
+    s.film = FilmSpec {
+        temporal_bins: f.temporal_bins * factor + 2 * pad,
+        bin_width_opl: fine_width,
+        start_opl: f.start_opl - pad as f32 * fine_width,
+        kernel: KernelSpec::Box,
+    };
+    for (suffix, bounces, filter) in [("3b", 3, Some(3)), ("mb", scene.render.max_bounces, None)] {
+        s.render.max_bounces = bounces;
+        s.render.filter_bounces = filter;
+        write_mitsuba(&s, &dir.join(format!("{name}_{suffix}.xml")))?;
+    }
+    let manifest = format!(
+        "# umbra bench accuracy --export-mitsuba: scene {name}\n\
+         xml_three_bounce = \"{name}_3b.xml\"\nxml_multi_bounce = \"{name}_mb.xml\"\n\
+         max_bounces = {}\nreference = {:?}\nreference_error = {:e}\n\
+         bins = {}\nbin_width_opl = {}\nstart_opl = {}\nsigma_opl = {sigma_opl}\n\
+         fine_factor = {factor}\nfine_bins = {}\nfine_bin_width_opl = {fine_width}\nfine_start_opl = {}\n",
+        scene.render.max_bounces,
+        r.path.canonicalize().unwrap_or(r.path.clone()).display().to_string(),
+        r.error,
+        f.temporal_bins,
+        f.bin_width_opl,
+        f.start_opl,
+        s.film.temporal_bins,
+        s.film.start_opl,
+    );
+    let path = dir.join(format!("{name}.toml"));
+    std::fs::write(&path, manifest).map_err(|e| Error::io(&path, e))
+}
+
+/// Points measured elsewhere (the Python suite's mitransient curves), from a CSV in
+/// [`csv`]'s columns; rows of scenes not in `scene_names` are skipped.
+pub fn read_points(path: &Path, scene_names: &[&'static str]) -> Result<Vec<Point>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let mut out = Vec::new();
+    for (i, line) in text.lines().enumerate().skip(1) {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let bad = |what: &str| Error::Line {
+            file: path.to_path_buf(),
+            line: i + 1,
+            msg: format!("{what} (columns: {})", CSV_HEADER.trim()),
+        };
+        let cols: Vec<&str> = line.split(',').collect();
+        if cols.len() != 6 {
+            return Err(bad(&format!("{} columns, not 6", cols.len())));
+        }
+        let num = |c: &str, what: &str| -> Result<f64> {
+            c.trim()
+                .parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| bad(&format!("{what} '{c}' is not a finite number")))
+        };
+        let Some(&scene) = scene_names.iter().find(|n| **n == cols[0].trim()) else {
+            continue;
+        };
+        out.push(Point {
+            scene,
+            method: cols[1].trim().to_string(),
+            setting: num(cols[2], "setting")?,
+            seconds: num(cols[3], "seconds")?,
+            error: num(cols[4], "error")?,
+            raw_error: num(cols[5], "raw_error")?,
+        });
+    }
+    Ok(out)
 }
 
 /// Every method's curve on `scene`: renders until one takes longer than `budget` s.
@@ -196,7 +299,7 @@ pub fn curves(name: &'static str, scene: &Scene, r: &Reference, budget: f64) -> 
     };
     for (label, visibility) in [
         ("tri3", Visibility::Centroid),
-        ("tri3, sub-triangle visibility", Visibility::Subtriangle),
+        ("tri3 (sub-triangle visibility)", Visibility::Subtriangle),
     ] {
         for s in [2.0f32, 0.6, 0.15, 0.05] {
             let opts = RenderOptions {
@@ -215,14 +318,14 @@ pub fn curves(name: &'static str, scene: &Scene, r: &Reference, budget: f64) -> 
     let methods: [(&str, Model, bool, bool); 4] = [
         ("mc3", Model::Mc3, true, true),
         (
-            "path, MIS (hidden-geometry + BSDF)",
+            "path: MIS (hidden-geometry + BSDF)",
             Model::Path,
             true,
             true,
         ),
-        ("path, BSDF sampling", Model::Path, false, true),
+        ("path: BSDF sampling", Model::Path, false, true),
         (
-            "path, hidden-geometry sampling (mitransient's)",
+            "path: hidden-geometry sampling only",
             Model::Path,
             true,
             false,
@@ -249,20 +352,27 @@ pub fn curves(name: &'static str, scene: &Scene, r: &Reference, budget: f64) -> 
     Ok(out)
 }
 
-/// The CSV of all points.
+const CSV_HEADER: &str = "scene,method,setting,seconds,error,raw_error\n";
+
+/// The CSV of all points (method names hold no commas).
 pub fn csv(points: &[Point]) -> String {
-    let mut s = String::from("scene,method,setting,seconds,error,raw_error\n");
+    let mut s = String::from(CSV_HEADER);
     for p in points {
         s += &format!(
             "{},{},{},{:.6},{:.6e},{:.6e}\n",
-            p.scene, p.method, p.setting, p.seconds, p.error, p.raw_error
+            p.scene,
+            p.method.replace(',', ";"),
+            p.setting,
+            p.seconds,
+            p.error,
+            p.raw_error
         );
     }
     s
 }
 
 /// Log-log chart, one panel per scene, one line per method.
-pub fn write_png(path: &Path, points: &[Point], scene_names: &[&str]) -> Result<()> {
+pub fn write_png(path: &Path, title: &str, points: &[Point], scene_names: &[&str]) -> Result<()> {
     use crate::io::plot::Series;
     let mut panels = Vec::new();
     for &scene in scene_names {
@@ -287,7 +397,7 @@ pub fn write_png(path: &Path, points: &[Point], scene_names: &[&str]) -> Result<
     }
     crate::io::plot::loglog_panel_chart(
         path,
-        "Relative L2 error against a converged multi-bounce reference, vs wall-clock time",
+        title,
         "seconds (2 cores)",
         "relative L2 error",
         2,

@@ -7,10 +7,12 @@
 //!   as the subdivision threshold falls, with the cost of each setting.
 //! - [`ablation`]: the seed paper's comparison of sampling techniques at equal samples.
 //! - [`accuracy`]: error against wall-clock time for every way of computing a transient.
+//! - [`grad_accuracy`]: gradient error against wall-clock time (adjoints, replay, FD).
 //! - [`scaling`]: time and memory against scan, bins, triangles and spp.
 
 pub mod ablation;
 pub mod accuracy;
+pub mod grad_accuracy;
 pub mod scaling;
 
 use crate::error::Result;

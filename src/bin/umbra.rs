@@ -247,6 +247,16 @@ fn render(args: RenderArgs) -> umbra::Result<()> {
     if let Some(choice) = &renderer.auto_choice {
         eprintln!("auto: chose {}", choice.reason);
     }
+    let capped = renderer.subdivision_capped();
+    if capped > 0 {
+        eprintln!(
+            "warning: tri3: {capped} triangle(s) need more than {} subdivision levels for \
+             --subdivision {}; they stay coarser than asked (split them in the mesh; \
+             BENCHMARKS.md, where methods fail)",
+            umbra::transport::tri3::MAX_LEVEL,
+            opts.subdivision
+        );
+    }
     let total = renderer.total_work();
     let unit = renderer.work_unit();
     let bar = if args.quiet {

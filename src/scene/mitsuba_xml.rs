@@ -25,6 +25,7 @@
 mod params;
 mod shapes;
 mod tree;
+pub mod write;
 
 #[cfg(test)]
 mod tests;

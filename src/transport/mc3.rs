@@ -146,9 +146,10 @@ pub fn evaluate<R: Real>(
     if opl.v() < ctx.opl_min as f64 || opl.v() >= ctx.opl_max as f64 {
         return None;
     }
-    // G(x_l, x) G(x, x_s) = (c_l cw_l / r_l⁴)(c_s cw_s / r_s⁴).
+    // G(x_l, x) G(x, x_s) = (c_l cw_l / r_l⁴)(c_s cw_s / r_s⁴), one leg at a time: the
+    // product r_l⁴ r_s⁴ overflows f32 beyond ~66 km (the render was silently zero there).
     let (r2_l, r2_s) = (r_l * r_l, r_s * r_s);
-    let geometry = (c_l * c_s).abs() * cw_l * cw_s / (r2_l * r2_l * r2_s * r2_s);
+    let geometry = (c_l * cw_l / (r2_l * r2_l) * (c_s * cw_s / (r2_s * r2_s))).abs();
     let f_x = t.albedo_at(bary).s(FRAC_1_PI);
     let constant = ctx.power * ctx.f_wall * ctx.f_wall / prob;
     Some(((f_x * geometry * area).s(constant), opl))

@@ -122,6 +122,12 @@ impl<'a> Renderer<'a> {
         self.tri3.as_ref().map_or(0, Tri3Mesh::len)
     }
 
+    /// Hidden triangles that `tri3` left coarser than its `subdivision` threshold asks
+    /// (stopped at `tri3::MAX_LEVEL`; 0 for the Monte Carlo models): worth a warning.
+    pub fn subdivision_capped(&self) -> usize {
+        self.tri3.as_ref().map_or(0, |m| m.capped)
+    }
+
     /// Renders every measurement.
     pub fn render(&self, progress: Option<&Progress>) -> Result<Transient> {
         let bins = self.film.bins;

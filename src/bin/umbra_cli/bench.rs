@@ -9,7 +9,7 @@ use umbra::scene::Model;
 
 #[derive(clap::Args)]
 pub struct BenchArgs {
-    /// Which benchmark: tri3, grad, ablation, accuracy, scaling.
+    /// Which benchmark: tri3, grad, ablation, accuracy, grad-accuracy, scaling.
     pub which: String,
     /// Timed repetitions (median reported).
     #[arg(long, default_value_t = 5)]
@@ -41,16 +41,32 @@ pub struct BenchArgs {
     /// accuracy: scenes (letter, sphere, bunny, corner), comma-separated.
     #[arg(long, default_value = "letter,sphere,bunny,corner")]
     pub scenes: String,
+    /// accuracy: write the references and each scene as mitransient renders it (Mitsuba
+    /// XML with box bins 8x finer, plus a TOML manifest) to this folder, then stop
+    /// (python/bench/bench_accuracy_mitransient.py runs it).
+    #[arg(long)]
+    pub export_mitsuba: Option<PathBuf>,
+    /// accuracy: more curves to chart with Umbra's (a CSV in accuracy.csv's columns: the
+    /// mitransient curves of python/bench/bench_accuracy_mitransient.py).
+    #[arg(long)]
+    pub extra_curves: Option<PathBuf>,
 }
 
 pub fn bench(args: BenchArgs) -> umbra::Result<()> {
     use umbra::bench;
     if !matches!(
         args.which.as_str(),
-        "tri3" | "grad" | "grad-pass" | "ablation" | "accuracy" | "scaling" | "scaling-point"
+        "tri3"
+            | "grad"
+            | "grad-pass"
+            | "ablation"
+            | "accuracy"
+            | "grad-accuracy"
+            | "scaling"
+            | "scaling-point"
     ) {
         return Err(umbra::Error::Invalid(format!(
-            "bench: unknown benchmark '{}' (available: tri3, grad, ablation, accuracy, scaling)",
+            "bench: unknown benchmark '{}' (available: tri3, grad, ablation, accuracy, grad-accuracy, scaling)",
             args.which
         )));
     }
@@ -77,6 +93,9 @@ pub fn bench(args: BenchArgs) -> umbra::Result<()> {
     }
     if args.which == "accuracy" {
         return pool.install(|| bench_accuracy(&args));
+    }
+    if args.which == "grad-accuracy" {
+        return pool.install(|| bench_grad_accuracy(&args));
     }
     if args.which == "scaling-point" {
         // Child of `bench scaling`: one render, then its time, peak memory and work.
@@ -199,48 +218,109 @@ fn bench_accuracy(args: &BenchArgs) -> umbra::Result<()> {
             cache.display()
         );
         let r = accuracy::reference(name, scene, reference_spp, &cache)?;
+        names.push(*name);
+        if let Some(dir) = &args.export_mitsuba {
+            accuracy::export_mitsuba(name, scene, &r, dir, 8)?;
+            println!(
+                "{name}: reference {} ({:.3} %), mitransient scenes in {}",
+                r.path.display(),
+                100.0 * r.error,
+                dir.display()
+            );
+            continue;
+        }
         eprintln!(
             "bench accuracy: {name}: reference error {:.3} %; curves",
             100.0 * r.error
         );
         points.extend(accuracy::curves(name, scene, &r, args.budget)?);
-        names.push(*name);
         println!(
             "{name}: reference {reference_spp} spp, its own error {:.3} %",
             100.0 * r.error
         );
     }
+    if args.export_mitsuba.is_some() {
+        return Ok(());
+    }
     std::fs::create_dir_all(&args.out).map_err(|e| umbra::Error::io(&args.out, e))?;
     let csv = args.out.join("accuracy.csv");
     std::fs::write(&csv, accuracy::csv(&points)).map_err(|e| umbra::Error::io(&csv, e))?;
+    if let Some(extra) = &args.extra_curves {
+        let more = accuracy::read_points(extra, &names)?;
+        eprintln!(
+            "bench accuracy: {} points from {}",
+            more.len(),
+            extra.display()
+        );
+        points.extend(more);
+    }
     let png = args.out.join("accuracy.png");
-    accuracy::write_png(&png, &points, &names)?;
-    let mut methods: Vec<String> = Vec::new();
-    for p in &points {
-        if !methods.contains(&p.method) {
-            methods.push(p.method.clone());
+    let title = "Relative L2 error against a converged multi-bounce reference, vs wall-clock time";
+    accuracy::write_png(&png, title, &points, &names)?;
+    print_time_to_table(&points, &names);
+    println!("\n{} and {} written", png.display(), csv.display());
+    Ok(())
+}
+
+/// The table of time to 5 % and 1 % error and each method's lowest error.
+fn print_time_to_table(points: &[umbra::bench::accuracy::Point], names: &[&str]) {
+    use umbra::bench::accuracy::time_to;
+    let mut methods: Vec<&str> = Vec::new();
+    for p in points {
+        if !methods.contains(&p.method.as_str()) {
+            methods.push(&p.method);
         }
     }
     println!("\n| scene | method | time to 5 % | time to 1 % | lowest error (its time) |");
     println!("|---|---|---|---|---|");
-    for scene in &names {
+    let fmt = |t: Option<f64>| t.map_or("not reached".to_string(), |t| format!("{t:.3} s"));
+    for scene in names {
         for m in &methods {
-            let fmt = |t: Option<f64>| t.map_or("not reached".to_string(), |t| format!("{t:.3} s"));
             let best = points
                 .iter()
-                .filter(|p| p.scene == *scene && &p.method == m)
+                .filter(|p| p.scene == *scene && p.method == *m)
                 .min_by(|a, b| a.error.total_cmp(&b.error));
             if let Some(b) = best {
                 println!(
                     "| {scene} | {m} | {} | {} | {:.2} % ({:.3} s) |",
-                    fmt(accuracy::time_to(&points, scene, m, 0.05)),
-                    fmt(accuracy::time_to(&points, scene, m, 0.01)),
+                    fmt(time_to(points, scene, m, 0.05)),
+                    fmt(time_to(points, scene, m, 0.01)),
                     100.0 * b.error,
                     b.seconds
                 );
             }
         }
     }
+}
+
+/// `umbra bench grad-accuracy`: gradient error against time (bench::grad_accuracy).
+fn bench_grad_accuracy(args: &BenchArgs) -> umbra::Result<()> {
+    use umbra::bench::{accuracy, grad_accuracy as ga};
+    let reference_spp = args.reference_spp.max(2);
+    let cache = args.out.join("accuracy_cache");
+    let (mut points, mut names) = (Vec::new(), Vec::new());
+    for (name, scene) in ga::scenes()? {
+        let adj = ga::adjoint_histogram(&scene)?;
+        eprintln!(
+            "bench grad-accuracy: {name}: reference ({reference_spp} spp, cached in {})",
+            cache.display()
+        );
+        let r = ga::reference(name, &scene, &adj, reference_spp, &cache)?;
+        println!(
+            "{name}: reference gradient {reference_spp} spp, its own error {:.3} %",
+            100.0 * r.error
+        );
+        points.extend(ga::curves(name, &scene, &adj, &r, args.budget)?);
+        names.push(name);
+    }
+    std::fs::create_dir_all(&args.out).map_err(|e| umbra::Error::io(&args.out, e))?;
+    let csv = args.out.join("grad_accuracy.csv");
+    std::fs::write(&csv, accuracy::csv(&points)).map_err(|e| umbra::Error::io(&csv, e))?;
+    let png = args.out.join("grad_accuracy.png");
+    let title =
+        "Vertex-gradient error against a converged multi-bounce reference, vs wall-clock time";
+    accuracy::write_png(&png, title, &points, &names)?;
+    print_time_to_table(&points, &names);
     println!("\n{} and {} written", png.display(), csv.display());
     Ok(())
 }

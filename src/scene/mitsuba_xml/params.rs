@@ -227,8 +227,14 @@ impl<'n> Plugin<'n> {
                 }
             },
         };
-        let mean = vals.iter().sum::<f32>() / vals.len() as f32;
-        if vals.len() == 3 && vals.iter().any(|&x| x != vals[0]) {
+        // A grey triple is its value exactly (a mean of three f32s may not be).
+        let grey = vals.iter().all(|&x| x == vals[0]);
+        let mean = if grey {
+            vals[0]
+        } else {
+            vals.iter().sum::<f32>() / vals.len() as f32
+        };
+        if !grey {
             let lum = 0.2126 * vals[0] + 0.7152 * vals[1] + 0.0722 * vals[2];
             cx.warn(line, format!("{what}: Umbra is monochrome and uses the mean {mean} of '{v}' (Mitsuba's mono variants would use the luminance {lum})"));
         }

@@ -172,3 +172,45 @@ fn what_mitransient_cannot_express_is_refused_naming_the_field() {
     retro.objects[1].reflectance = umbra::scene::Reflectance::Retroreflective;
     assert_eq!(field(retro), "objects[1]");
 }
+
+#[test]
+fn cli_export_writes_a_scene_umbra_reads_back_and_refuses_the_default_scene_by_field() {
+    let dir = scratch("cli");
+    for (name, text) in objs() {
+        std::fs::write(dir.join(name), text).unwrap();
+    }
+    let toml_path = dir.join("s.toml");
+    std::fs::write(
+        &toml_path,
+        toml("confocal", 1.2, "irradiance = 1.0", "", ""),
+    )
+    .unwrap();
+    let xml = dir.join("s.xml");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_umbra"))
+        .args([
+            "export-mitsuba",
+            toml_path.to_str().unwrap(),
+            "-o",
+            xml.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let back = Scene::load(&xml).unwrap();
+    assert_eq!(back.objects.len(), 2);
+    // The default scene scans 1.6 m of a 2 m wall: mitransient cannot say that.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_umbra"))
+        .args(["export-mitsuba", "-o", dir.join("d.xml").to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("scan") && err.contains("whole relay-wall rectangle"),
+        "{err}"
+    );
+}

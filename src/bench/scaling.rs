@@ -5,8 +5,10 @@
 //! Base case: the `tri3` model (default subdivision, no visibility) on a wavy sheet of
 //! 10 082 triangles at 0.8 m, confocal 32 x 32, 512 bins of 4 mm. Axes: scan side (8 to
 //! 64, so measurements grow as side²), time bins (128 to 2048), triangles (1k to 100k,
-//! the sheet refined), and samples per measurement for the multi-bounce path tracer on
-//! the same sheet (16 x 16 scan; 16 to 1024 spp). Each point runs in a fresh process
+//! then 1M, the sheet refined), and samples per measurement on the same sheet (16 x 16
+//! scan) for the multi-bounce path tracer (16 to 1024 spp), `mc3` (64 to 4096), and the
+//! adjoint passes of both (the gradient for a fixed `dLoss/dH`, no forward render: path
+//! replay keeps no tape, so memory must not grow with spp). Each point runs in a fresh process
 //! (`umbra bench scaling-point`), so its peak resident memory (`VmHWM`) is its own.
 
 use super::{mesh_scene, peak_rss_kb};
@@ -19,11 +21,14 @@ use glam::Vec3;
 use std::time::Instant;
 
 /// The axes, with the values each one takes.
-pub const AXES: [(&str, &[u32]); 4] = [
+pub const AXES: [(&str, &[u32]); 7] = [
     ("scan side", &[8, 16, 32, 64]),
     ("time bins", &[128, 256, 512, 1024, 2048]),
-    ("triangles (thousands)", &[1, 4, 10, 40, 100]),
+    ("triangles (thousands)", &[1, 4, 10, 40, 100, 1000]),
     ("path spp", &[16, 64, 256, 1024]),
+    ("mc3 spp", &[64, 256, 1024, 4096]),
+    ("mc3 adjoint spp", &[64, 256, 1024, 4096]),
+    ("path adjoint spp", &[16, 64, 256, 1024]),
 ];
 
 fn sheet_scene(triangles: u32, scan: u32, bins: u32) -> Result<Scene> {
@@ -46,6 +51,7 @@ pub fn point(axis: usize, value: u32) -> Result<(f64, u64, u64)> {
         0 => (sheet_scene(10_082, value, 512)?, Model::Tri3, 1),
         1 => (sheet_scene(10_082, 32, value)?, Model::Tri3, 1),
         2 => (sheet_scene(1000 * value, 32, 512)?, Model::Tri3, 1),
+        4 | 5 => (sheet_scene(10_082, 16, 512)?, Model::Mc3, value),
         _ => (sheet_scene(10_082, 16, 512)?, Model::Path, value),
     };
     let geom = SceneGeometry::build(&scene);
@@ -55,10 +61,23 @@ pub fn point(axis: usize, value: u32) -> Result<(f64, u64, u64)> {
         visibility: Visibility::None,
         ..RenderOptions::from_scene(&scene)
     };
-    let r = Renderer::new(&scene, &geom, &opts)?;
-    let work = r.total_work();
-    let start = Instant::now();
-    std::hint::black_box(r.render(None)?);
+    let start;
+    let work;
+    if axis == 5 || axis == 6 {
+        // The adjoint pass for a fixed dLoss/dH (a deterministic pattern).
+        let n = scene.num_measurements() * scene.film.temporal_bins as usize;
+        let adj: Vec<f32> = (0..n)
+            .map(|i| ((i * 37 % 101) as f32 - 50.0) * 1e-2)
+            .collect();
+        work = scene.num_measurements() as u64 * spp as u64;
+        start = Instant::now();
+        std::hint::black_box(crate::adjoint::gradient(&scene, &geom, &opts, &adj, None)?);
+    } else {
+        let r = Renderer::new(&scene, &geom, &opts)?;
+        work = r.total_work();
+        start = Instant::now();
+        std::hint::black_box(r.render(None)?);
+    }
     Ok((
         start.elapsed().as_secs_f64(),
         peak_rss_kb().unwrap_or(0),

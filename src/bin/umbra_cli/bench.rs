@@ -384,12 +384,12 @@ fn bench_scaling(args: &BenchArgs) -> umbra::Result<()> {
         println!(
             "{name}: time ∝ {size_name}^{kt:.2} (∝ work^{:.2}, work = {}), peak memory ∝ {size_name}^{km:.2}",
             exponent(&per_work),
-            if axis == 3 { "samples" } else { "(measurement, sub-triangle) pairs" }
+            if axis >= 3 { "samples" } else { "(measurement, sub-triangle) pairs" }
         );
         panels.push((
             format!("time vs {size_name} (fitted exponent {kt:.2})"),
             vec![Series {
-                label: "render s",
+                label: "seconds",
                 points: time,
             }],
         ));
@@ -401,7 +401,7 @@ fn bench_scaling(args: &BenchArgs) -> umbra::Result<()> {
             }],
         ));
     }
-    println!("\n| axis | value | work (pairs or samples) | render s | peak RSS MB |");
+    println!("\n| axis | value | work (pairs or samples) | seconds (render or adjoint pass) | peak RSS MB |");
     println!("|---|---|---|---|---|");
     for (name, v, work, seconds, mb) in &table {
         println!("| {name} | {v} | {work:.0} | {seconds:.4} | {mb:.1} |");
@@ -410,7 +410,7 @@ fn bench_scaling(args: &BenchArgs) -> umbra::Result<()> {
     let png = args.out.join("scaling.png");
     umbra::io::plot::loglog_panel_chart(
         &png,
-        "Scaling: one axis at a time from the base case (tri3; path for spp)",
+        "Scaling: one axis at a time from the base case (tri3; path, mc3 and their adjoints for spp)",
         "size",
         "",
         2,

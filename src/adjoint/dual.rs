@@ -23,6 +23,17 @@ pub trait Real:
     /// `1 − erf`, precise in the tail.
     fn erfc(self) -> Self;
 
+    /// The standard normal distribution and density, `(Φ(u), φ(u))`. `f64` reads them
+    /// from a table (`film::normal`, error < 1.3e-13); derivatives carry them exactly.
+    #[inline(always)]
+    fn normal(self) -> (Self, Self) {
+        const INV_SQRT_2PI: f64 = 0.398_942_280_401_432_7;
+        (
+            self.s(-std::f64::consts::FRAC_1_SQRT_2).erfc().s(0.5),
+            (self * self).s(-0.5).exp().s(INV_SQRT_2PI),
+        )
+    }
+
     /// `self · k` for a constant `k`.
     #[inline(always)]
     fn s<K: Into<f64>>(self, k: K) -> Self {
@@ -111,6 +122,10 @@ impl Real for f64 {
     fn erfc(self) -> Self {
         libm::erfc(self)
     }
+    #[inline(always)]
+    fn normal(self) -> (Self, Self) {
+        crate::film::normal::normal(self)
+    }
 }
 
 /// `v + Σ d_i ε_i`: a value and its partial derivatives with respect to `N` parameters.
@@ -169,6 +184,12 @@ impl<T: Float, const N: usize> Real for Dual<T, N> {
     fn erfc(self) -> Self {
         let slope = T::c(-std::f64::consts::FRAC_2_SQRT_PI) * (-(self.v * self.v)).exp();
         self.chain(self.v.erfc(), slope)
+    }
+    #[inline(always)]
+    fn normal(self) -> (Self, Self) {
+        // Φ' = φ, φ' = −uφ.
+        let (c, p) = self.v.normal();
+        (self.chain(c, p), self.chain(p, -(self.v * p)))
     }
     #[inline(always)]
     fn s<K: Into<f64>>(self, k: K) -> Self {

@@ -20,6 +20,7 @@ mod adjoint_tests;
 mod box_pulse;
 pub mod irf;
 pub mod jitter;
+pub mod normal;
 mod pulse;
 
 pub use box_pulse::{splat_lanes, BoxPulse, LaneRow, PulseLanes, LANES, SPLAT_PAD};
@@ -94,17 +95,18 @@ impl Film {
                 }
                 let lo = lo.max(0.0) as usize;
                 let hi = (hi as usize).min(self.bins - 1);
-                let inv = 1.0 / (sigma * std::f64::consts::SQRT_2);
-                // Φ((edge − τ)/σ) − ½.
+                let inv = 1.0 / sigma;
+                // Φ((edge − τ)/σ) (film::normal's table for f64).
                 let cdf = |b: usize| {
                     (R::c(self.start + b as f64 * self.width) - opl)
                         .s(inv)
-                        .erf()
+                        .normal()
+                        .0
                 };
                 let mut prev = cdf(lo);
                 for b in lo..=hi {
                     let next = cdf(b + 1);
-                    add(b, w * (next - prev).s(0.5));
+                    add(b, w * (next - prev));
                     prev = next;
                 }
             }

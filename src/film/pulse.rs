@@ -111,15 +111,23 @@ impl<R: Real> Pulse<R> {
         }
     }
 
-    /// `H(x) = ∫ Φ((x − t)/σ) dW(t)` (Gaussian kernel).
+    /// `H(x) = ∫ Φ((x − t)/σ) dW(t)` (Gaussian kernel). `Φ` and `φ` are needed at
+    /// `u_k = (x − t_k)/σ` only (and at quadrature nodes for narrow pieces): evaluated
+    /// once per corner.
     fn gauss_cdf(&self, sigma: f64, x: f64) -> R {
         let ([t0, t1, t2], [w0, _, w2]) = (self.t, self.w);
         let (xr, inv_s, s) = (R::c(x), 1.0 / sigma, sigma);
+        let at = |t: R| {
+            let u = (xr - t).s(inv_s);
+            let (c, p) = u.normal();
+            (u, c, p)
+        };
+        let (n0, n1, n2) = (at(t0), at(t1), at(t2));
         // The by-parts boundary term sits at the top of the last piece present: with an
         // empty [t1, t2] (an exact tie of the two latest corners) that is t1, which is
         // where the limit of a vanishing piece puts its time derivative.
-        let top = if self.kb.v() != 0.0 { t2 } else { t1 };
-        let mut h = self.total * cap_phi((xr - top).s(inv_s));
+        let top = if self.kb.v() != 0.0 { n2 } else { n1 };
+        let mut h = self.total * top.1;
         // A piece much narrower than σ: its closed form below subtracts terms
         // ~ (span/δ)² larger than the result (~ (span/δ)³ in the derivative), so it is
         // integrated by 3-point Gauss–Legendre instead: W is cubic and φ varies by
@@ -132,7 +140,7 @@ impl<R: Real> Pulse<R> {
                 let (nodes, half) = gauss_legendre_nodes(t0, t1);
                 for (t, weight) in nodes.into_iter().zip(GL_WEIGHTS) {
                     let z = t - t0;
-                    let dens = phi((xr - t).s(inv_s));
+                    let dens = (xr - t).s(inv_s).normal().1;
                     h = h + (half * k * z * z * (w0.s(3.0) + g * z) * dens).s(weight * inv_s);
                 }
             } else {
@@ -142,7 +150,7 @@ impl<R: Real> Pulse<R> {
                     k * (w0.s(3.0 * s * s) + g.s(3.0 * s * s) * d),
                     -(k * g).s(s * s * s),
                 ];
-                h = h + moments(e, (xr - t1).s(inv_s), (xr - t0).s(inv_s));
+                h = h + moments(e, n1, n0);
             }
         }
         // Piece [t1, t2]: W = total − kb (3 w2 y² + gb y³), y = t2 − t = e + σu.
@@ -152,7 +160,7 @@ impl<R: Real> Pulse<R> {
                 let (nodes, half) = gauss_legendre_nodes(t1, t2);
                 for (t, weight) in nodes.into_iter().zip(GL_WEIGHTS) {
                     let y = t2 - t;
-                    let dens = phi((xr - t).s(inv_s));
+                    let dens = (xr - t).s(inv_s).normal().1;
                     let w_t = self.total - k * y * y * (w2.s(3.0) + g * y);
                     h = h + (half * w_t * dens).s(weight * inv_s);
                 }
@@ -163,7 +171,7 @@ impl<R: Real> Pulse<R> {
                     -(k * (w2.s(3.0 * s * s) + g.s(3.0 * s * s) * e_)),
                     -(k * g).s(s * s * s),
                 ];
-                h = h + moments(e, (xr - t2).s(inv_s), (xr - t1).s(inv_s));
+                h = h + moments(e, n2, n1);
             }
         }
         h
@@ -181,10 +189,9 @@ fn gauss_legendre_nodes<R: Real>(a: R, b: R) -> ([R; 3], R) {
     ([mid - half.s(X), mid, mid + half.s(X)], half)
 }
 
-/// `∫_{lo}^{hi} Σ_k e_k u^k φ(u) du`.
-fn moments<R: Real>(e: [R; 4], lo: R, hi: R) -> R {
-    let anti = |u: R| {
-        let (p, c) = (phi(u), cap_phi(u));
+/// `∫_{lo}^{hi} Σ_k e_k u^k φ(u) du`, each end given as `(u, Φ(u), φ(u))`.
+fn moments<R: Real>(e: [R; 4], lo: (R, R, R), hi: (R, R, R)) -> R {
+    let anti = |(u, c, p): (R, R, R)| {
         e[0] * c - e[1] * p + e[2] * (c - u * p) - e[3] * (u * u + R::c(2.0)) * p
     };
     anti(hi) - anti(lo)
@@ -273,16 +280,6 @@ impl Film {
             }
         }
     }
-}
-
-fn phi<R: Real>(u: R) -> R {
-    const INV_SQRT_2PI: f64 = 0.398_942_280_401_432_7;
-    (u * u).s(-0.5).exp().s(INV_SQRT_2PI)
-}
-
-/// `Φ(u) = erfc(−u/√2)/2`.
-fn cap_phi<R: Real>(u: R) -> R {
-    u.s(-std::f64::consts::FRAC_1_SQRT_2).erfc().s(0.5)
 }
 
 #[cfg(test)]

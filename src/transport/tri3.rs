@@ -151,28 +151,38 @@ impl Tri3Mesh {
 
     /// `centroid` visibility: for every original triangle, whether its centroid sees both
     /// wall points of the measurement (left empty for the other modes).
-    pub fn parent_visibility(&self, ctx: &MeasurementCtx, v: Visibility, out: &mut Vec<bool>) {
+    pub fn parent_visibility(&self, v: Visibility, out: &mut Vec<u8>) {
         out.clear();
         if v == Visibility::Centroid {
-            let (x_l, x_s) = (ctx.x_l, ctx.x_s);
-            out.extend(
-                self.parent_centroid
-                    .iter()
-                    .map(|&c| !ctx.geom.occluded(c, x_l) && !ctx.geom.occluded(c, x_s)),
-            );
+            // Filled on first use by `visible`: parents whose sub-triangles all face
+            // away from the wall point (dead before visibility) cast no ray.
+            out.resize(self.parent_centroid.len(), UNKNOWN);
         }
     }
 
     /// Whether sub-triangle `k` counts for the measurement, under visibility mode `v`
-    /// (`parents` from [`Tri3Mesh::parent_visibility`]).
-    pub fn visible(&self, k: usize, ctx: &MeasurementCtx, v: Visibility, parents: &[bool]) -> bool {
+    /// (`parents` from [`Tri3Mesh::parent_visibility`], completed as it goes).
+    pub fn visible(
+        &self,
+        k: usize,
+        ctx: &MeasurementCtx,
+        v: Visibility,
+        parents: &mut [u8],
+    ) -> bool {
         match v {
             Visibility::None => true,
-            Visibility::Centroid => parents[self.parent[k] as usize],
-            Visibility::Subtriangle => {
-                let c = self.centroid[k];
-                !ctx.geom.occluded(c, ctx.x_l) && !ctx.geom.occluded(c, ctx.x_s)
+            Visibility::Centroid => {
+                let p = self.parent[k] as usize;
+                if parents[p] == UNKNOWN {
+                    parents[p] = if seen(ctx, self.parent_centroid[p]) {
+                        SEEN
+                    } else {
+                        HIDDEN
+                    };
+                }
+                parents[p] == SEEN
             }
+            Visibility::Subtriangle => seen(ctx, self.centroid[k]),
         }
     }
 
@@ -238,11 +248,21 @@ impl Tri3Mesh {
     }
 }
 
+/// Centroid visibility of a parent triangle, per measurement.
+const UNKNOWN: u8 = 0;
+const SEEN: u8 = 1;
+const HIDDEN: u8 = 2;
+
+/// `c` sees the laser spot and the sensor point (one ray in confocal capture).
+fn seen(ctx: &MeasurementCtx, c: glam::Vec3) -> bool {
+    !ctx.geom.occluded(c, ctx.x_l) && (ctx.x_s == ctx.x_l || !ctx.geom.occluded(c, ctx.x_s))
+}
+
 /// Reusable per-thread buffers: no allocation per measurement once warm.
 #[derive(Default)]
 pub struct Tri3Scratch {
-    /// Per original triangle: visible from both wall points (centroid visibility).
-    visible: Vec<bool>,
+    /// Per original triangle: centroid visibility (UNKNOWN, SEEN, HIDDEN).
+    visible: Vec<u8>,
     /// Box kernel: the measurement's bins, one row of eight lanes each, and
     /// [`SPLAT_PAD`] rows of scratch.
     hist32: Vec<LaneRow>,
@@ -260,7 +280,7 @@ pub fn render_measurement(
     scratch: &mut Tri3Scratch,
     out: &mut [f32],
 ) {
-    mesh.parent_visibility(ctx, visibility, &mut scratch.visible);
+    mesh.parent_visibility(visibility, &mut scratch.visible);
     let bins = film.bins;
     let gaussian = matches!(film.kernel, KernelSpec::Gaussian { .. });
     if gaussian {
@@ -282,7 +302,7 @@ pub fn render_measurement(
         if visibility != Visibility::None {
             for j in 0..W {
                 if pulses.lanes.live()[j]
-                    && !mesh.visible(b * W + j, ctx, visibility, &scratch.visible)
+                    && !mesh.visible(b * W + j, ctx, visibility, &mut scratch.visible)
                 {
                     pulses.lanes.kill(j);
                 }

@@ -116,10 +116,10 @@ pub fn render_measurement(
     hist: &mut [f64],
 ) {
     let mut parents = Vec::new();
-    mesh.parent_visibility(ctx, visibility, &mut parents);
+    mesh.parent_visibility(visibility, &mut parents);
     let scale = (ctx.power * ctx.f_wall * ctx.f_wall) as f64;
     for k in 0..mesh.len() {
-        if mesh.visible(k, ctx, visibility, &parents) {
+        if mesh.visible(k, ctx, visibility, &mut parents) {
             let parent = TriParams::constant64(&ctx.geom.hidden[mesh.parent[k] as usize]);
             pair_bins(mesh, k, &parent, ctx, film, |b, v: f64| {
                 hist[b] += scale * v
@@ -139,10 +139,10 @@ pub fn adjoint_measurement(
     tri_grad: &mut [[f64; TRI_PARAMS]],
 ) {
     let mut parents = Vec::new();
-    mesh.parent_visibility(ctx, visibility, &mut parents);
+    mesh.parent_visibility(visibility, &mut parents);
     let scale = (ctx.power * ctx.f_wall * ctx.f_wall) as f64;
     for k in 0..mesh.len() {
-        if !mesh.visible(k, ctx, visibility, &parents) {
+        if !mesh.visible(k, ctx, visibility, &mut parents) {
             continue;
         }
         let p = mesh.parent[k] as usize;

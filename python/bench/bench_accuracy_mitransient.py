@@ -15,7 +15,8 @@ Steps:
    references (path tracer, all techniques, two halves; cached) and each scene written as
    Mitsuba XML by Umbra's exporter (scene::mitsuba_xml::write, round trip tested in
    tests/mitsuba_export.rs): three-bounce (max_depth 3, filter_bounces 2) and multi-bounce
-   (the reference's 8 bounces), laser + hidden-geometry sampling, mitransient's techniques.
+   (the reference's 8 bounces) with laser + hidden-geometry sampling, mitransient's NLOS
+   techniques, and multi-bounce with laser + BSDF sampling (hidden-geometry sampling off).
 2. The scenes' Gaussian kernel (sigma 8 mm of OPL): mitransient 1.3.1 reads
    temporal_filter = gaussian but bins with a box, so it renders box bins 8x finer (1 mm)
    over the window widened by 4 sigma, and this script integrates each fine bin against the
@@ -60,7 +61,9 @@ MT_CSV = DOCS / "accuracy_mitransient.csv"
 METHODS = {
     "3b": "mitransient three-bounce (laser + HGS)",
     "mb": "mitransient multi-bounce (laser + HGS)",
+    "mb_bsdf": "mitransient multi-bounce (laser + BSDF)",
 }
+XML_KEY = {"3b": "xml_three_bounce", "mb": "xml_multi_bounce", "mb_bsdf": "xml_multi_bounce_bsdf"}
 
 
 # ------------------------------------------------------------------ the Gaussian kernel
@@ -158,8 +161,8 @@ def curves(mt: Mitransient, name: str, m: dict, ref: np.ndarray, ref_err: float,
     """The ladders; appends to `notes` each curve's last render's total against the
     reference's (a bias shows there, noise hardly)."""
     rows = []
-    for kind in ("3b", "mb"):
-        xml = EXPORT / m["xml_three_bounce" if kind == "3b" else "xml_multi_bounce"]
+    for kind in METHODS:
+        xml = EXPORT / m[XML_KEY[kind]]
         scene = mtutil.load_xml(xml)
         mt.render(scene, 1, 0)  # warm-up: first-launch costs out of the curve
         spp = 4

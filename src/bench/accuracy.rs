@@ -147,49 +147,23 @@ pub fn reference(name: &str, scene: &Scene, spp: u32, cache: &Path) -> Result<Re
         "reference_{name}_{spp}_{:016x}.npy",
         scene_key(scene)
     ));
-    let halves = if path.is_file() {
-        let t = crate::io::read_npy(&path)?;
-        let n = t.data.len() / 2;
-        (t.data[..n].to_vec(), t.data[n..].to_vec())
-    } else {
-        let all = with_techniques(scene, true, true, true);
-        let half = |seed| {
-            render(
-                &all,
-                &RenderOptions {
-                    model: Model::Path,
-                    spp: (spp / 2).max(1),
-                    seed,
-                    ..RenderOptions::from_scene(&all)
-                },
-            )
-            .map(|r| r.0)
+    let all = with_techniques(scene, true, true, true);
+    let (data, error) = super::reference_halves(&path, [9001, 9002], |seed| {
+        let opts = RenderOptions {
+            model: Model::Path,
+            spp: (spp / 2).max(1),
+            seed,
+            ..RenderOptions::from_scene(&all)
         };
-        let (a, b) = (half(9001)?, half(9002)?);
-        let mut both = a.clone();
-        both.extend_from_slice(&b);
-        std::fs::create_dir_all(cache).map_err(|e| Error::io(cache, e))?;
-        let t = crate::transport::Transient {
-            shape: vec![2, a.len()],
-            data: both,
-        };
-        crate::io::write_npy(&path, &t)?;
-        (a, b)
-    };
-    let data: Vec<f32> = halves
-        .0
-        .iter()
-        .zip(&halves.1)
-        .map(|(a, b)| 0.5 * (a + b))
-        .collect();
-    // Each half has relative noise e_h, their difference √2 e_h, the mean e_h / √2.
-    let error = 0.5 * rel_l2(&halves.0, &halves.1);
+        render(&all, &opts).map(|r| r.0)
+    })?;
     Ok(Reference { data, error, path })
 }
 
 /// Writes `scene` as mitransient renders it in this bench (`<name>_3b.xml`: three
-/// bounces, `<name>_mb.xml`: the scene's bounces; laser and hidden-geometry sampling,
-/// mitransient's techniques) and `<name>.toml`, what the Python suite
+/// bounces, `<name>_mb.xml`: the scene's bounces, both with laser and hidden-geometry
+/// sampling, mitransient's NLOS techniques; `<name>_mb_bsdf.xml`: the scene's bounces
+/// with laser and BSDF sampling) and `<name>.toml`, what the Python suite
 /// (`python/bench/bench_accuracy_mitransient.py`) needs to compare it with `r`.
 ///
 /// mitransient 1.3.1 bins with a box only, so the files ask for box bins `factor` times
@@ -219,14 +193,21 @@ pub fn export_mitsuba(
         start_opl: f.start_opl - pad as f32 * fine_width,
         kernel: KernelSpec::Box,
     };
-    for (suffix, bounces, filter) in [("3b", 3, Some(3)), ("mb", scene.render.max_bounces, None)] {
+    let all = scene.render.max_bounces;
+    for (suffix, bounces, filter, hidden) in [
+        ("3b", 3, Some(3), true),
+        ("mb", all, None, true),
+        ("mb_bsdf", all, None, false),
+    ] {
         s.render.max_bounces = bounces;
         s.render.filter_bounces = filter;
+        s.render.techniques.hidden_geometry_sampling = hidden;
         write_mitsuba(&s, &dir.join(format!("{name}_{suffix}.xml")))?;
     }
     let manifest = format!(
         "# umbra bench accuracy --export-mitsuba: scene {name}\n\
          xml_three_bounce = \"{name}_3b.xml\"\nxml_multi_bounce = \"{name}_mb.xml\"\n\
+         xml_multi_bounce_bsdf = \"{name}_mb_bsdf.xml\"\n\
          max_bounces = {}\nreference = {:?}\nreference_error = {:e}\n\
          bins = {}\nbin_width_opl = {}\nstart_opl = {}\nsigma_opl = {sigma_opl}\n\
          fine_factor = {factor}\nfine_bins = {}\nfine_bin_width_opl = {fine_width}\nfine_start_opl = {}\n",
@@ -317,15 +298,10 @@ pub fn curves(name: &'static str, scene: &Scene, r: &Reference, budget: f64) -> 
     }
     let methods: [(&str, Model, bool, bool); 4] = [
         ("mc3", Model::Mc3, true, true),
+        ("path MIS (hidden-geometry + BSDF)", Model::Path, true, true),
+        ("path BSDF sampling", Model::Path, false, true),
         (
-            "path: MIS (hidden-geometry + BSDF)",
-            Model::Path,
-            true,
-            true,
-        ),
-        ("path: BSDF sampling", Model::Path, false, true),
-        (
-            "path: hidden-geometry sampling only",
+            "path hidden-geometry sampling only",
             Model::Path,
             true,
             false,

@@ -157,40 +157,19 @@ pub fn reference(
         "grad_reference_{name}_{spp}_{:016x}.npy",
         accuracy::scene_key(scene)
     ));
-    let halves = if path.is_file() {
-        let t = crate::io::read_npy(&path)?;
-        let n = t.data.len() / 2;
-        let v: Vec<f64> = t.data.iter().map(|&x| x as f64).collect();
-        (v[..n].to_vec(), v[n..].to_vec())
-    } else {
-        let all = with_techniques(scene, true, true, true);
-        let geom = SceneGeometry::build(&all);
-        let half = |seed| -> Result<Vec<f64>> {
-            let opts = RenderOptions {
-                model: Model::Path,
-                spp: (spp / 2).max(1),
-                seed,
-                ..RenderOptions::from_scene(&all)
-            };
-            Ok(flat(&gradient(&all, &geom, &opts, adj, None)?))
+    let all = with_techniques(scene, true, true, true);
+    let geom = SceneGeometry::build(&all);
+    let (grad, error) = super::reference_halves(&path, [9101, 9102], |seed| {
+        let opts = RenderOptions {
+            model: Model::Path,
+            spp: (spp / 2).max(1),
+            seed,
+            ..RenderOptions::from_scene(&all)
         };
-        let (a, b) = (half(9101)?, half(9102)?);
-        std::fs::create_dir_all(cache).map_err(|e| Error::io(cache, e))?;
-        let both: Vec<f32> = a.iter().chain(&b).map(|&x| x as f32).collect();
-        let t = crate::transport::Transient {
-            shape: vec![2, a.len()],
-            data: both,
-        };
-        crate::io::write_npy(&path, &t)?;
-        (a, b)
-    };
-    let grad: Vec<f64> = halves
-        .0
-        .iter()
-        .zip(&halves.1)
-        .map(|(a, b)| 0.5 * (a + b))
-        .collect();
-    let error = 0.5 * rel(&halves.0, &halves.1);
+        let g = flat(&gradient(&all, &geom, &opts, adj, None)?);
+        Ok(g.iter().map(|&x| x as f32).collect())
+    })?;
+    let grad = grad.iter().map(|&x| x as f64).collect();
     Ok(Reference { grad, error, path })
 }
 

@@ -202,6 +202,35 @@ pub fn with_techniques(scene: &Scene, laser: bool, hidden: bool, bsdf: bool) -> 
     s
 }
 
+/// A converged reference computed once: `make(seed)` for two seeds, cached in `path` as
+/// one `(2, n)` `.npy`. Returns the mean of the halves and its own relative error, half
+/// their relative difference (each half has error `e_h`, their difference `√2 e_h`, the
+/// mean `e_h / √2`).
+pub(crate) fn reference_halves(
+    path: &Path,
+    seeds: [u64; 2],
+    make: impl Fn(u64) -> Result<Vec<f32>>,
+) -> Result<(Vec<f32>, f64)> {
+    let (a, b) = if path.is_file() {
+        let t = crate::io::read_npy(path)?;
+        let n = t.data.len() / 2;
+        (t.data[..n].to_vec(), t.data[n..].to_vec())
+    } else {
+        let (a, b) = (make(seeds[0])?, make(seeds[1])?);
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir).map_err(|e| crate::Error::io(dir, e))?;
+        }
+        let t = Transient {
+            shape: vec![2, a.len()],
+            data: a.iter().chain(&b).copied().collect(),
+        };
+        crate::io::write_npy(path, &t)?;
+        (a, b)
+    };
+    let mean = a.iter().zip(&b).map(|(x, y)| 0.5 * (x + y)).collect();
+    Ok((mean, 0.5 * rel_l2(&a, &b)))
+}
+
 /// Relative L2 difference `‖a − b‖ / ‖b‖`.
 pub fn rel_l2(a: &[f32], b: &[f32]) -> f64 {
     let d: f64 = a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum();

@@ -259,12 +259,46 @@ pub fn loglog_panel_chart(
     register_font();
     let columns = columns.max(1);
     let rows = panels.len().div_ceil(columns).max(1);
-    let root = BitMapBackend::new(path, (620 * columns as u32, 60 + 440 * rows as u32))
-        .into_drawing_area();
+    // Panels with the same lines share one legend, drawn under the title instead of
+    // over the data.
+    let labels: Vec<&str> = panels
+        .first()
+        .map_or(Vec::new(), |p| p.1.iter().map(|s| s.label).collect());
+    let shared = panels.len() > 1
+        && labels.len() > 1
+        && panels
+            .iter()
+            .all(|(_, s)| s.iter().map(|x| x.label).eq(labels.iter().copied()));
+    let legend_columns = 2 * columns;
+    let legend_rows = if shared {
+        labels.len().div_ceil(legend_columns)
+    } else {
+        0
+    };
+    let head_height = 50 + 20 * legend_rows as u32;
+    let root = BitMapBackend::new(
+        path,
+        (620 * columns as u32, head_height + 10 + 440 * rows as u32),
+    )
+    .into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(path, e))?;
-    let (head, body) = root.split_vertically(50);
+    let (head, body) = root.split_vertically(head_height);
     head.draw(&Text::new(title, (20, 14), (FAMILY, 18)))
         .map_err(|e| err(path, e))?;
+    if shared {
+        for (k, label) in labels.iter().enumerate() {
+            let colour = Palette99::pick(k).to_rgba();
+            let x = 30 + (k % legend_columns) as i32 * 300;
+            let y = 50 + (k / legend_columns) as i32 * 20;
+            head.draw(&PathElement::new(
+                [(x, y), (x + 24, y)],
+                colour.stroke_width(3),
+            ))
+            .map_err(|e| err(path, e))?;
+            head.draw(&Text::new(*label, (x + 30, y - 7), (FAMILY, 12)))
+                .map_err(|e| err(path, e))?;
+        }
+    }
     let good = |p: &&(f64, f64)| p.0 > 0.0 && p.1 > 0.0 && p.0.is_finite() && p.1.is_finite();
     for (area, (name, series)) in body.split_evenly((rows, columns)).iter().zip(panels) {
         let pts: Vec<&(f64, f64)> = series
@@ -308,7 +342,9 @@ pub fn loglog_panel_chart(
                 .draw_series(pts.iter().map(|&p| Circle::new(p, 3, colour.filled())))
                 .map_err(|e| err(path, e))?;
         }
-        legend(&mut chart, path, SeriesLabelPosition::LowerLeft, 11)?;
+        if !shared {
+            legend(&mut chart, path, SeriesLabelPosition::LowerLeft, 11)?;
+        }
     }
     root.present().map_err(|e| err(path, e))?;
     Ok(())

@@ -50,6 +50,10 @@ pub struct BenchArgs {
     /// mitransient curves of python/bench/bench_accuracy_mitransient.py).
     #[arg(long)]
     pub extra_curves: Option<PathBuf>,
+    /// accuracy / grad-accuracy: redraw the chart and table from the CSV in --out
+    /// instead of measuring.
+    #[arg(long)]
+    pub replot: bool,
 }
 
 pub fn bench(args: BenchArgs) -> umbra::Result<()> {
@@ -213,6 +217,10 @@ fn bench_accuracy(args: &BenchArgs) -> umbra::Result<()> {
     let mut points = Vec::new();
     let mut names = Vec::new();
     for (name, scene) in all.iter().filter(|(n, _)| wanted.contains(n)) {
+        if args.replot {
+            names.push(*name);
+            continue;
+        }
         eprintln!(
             "bench accuracy: {name}: reference ({reference_spp} spp, cached in {})",
             cache.display()
@@ -244,7 +252,11 @@ fn bench_accuracy(args: &BenchArgs) -> umbra::Result<()> {
     }
     std::fs::create_dir_all(&args.out).map_err(|e| umbra::Error::io(&args.out, e))?;
     let csv = args.out.join("accuracy.csv");
-    std::fs::write(&csv, accuracy::csv(&points)).map_err(|e| umbra::Error::io(&csv, e))?;
+    if args.replot {
+        points = accuracy::read_points(&csv, &names)?;
+    } else {
+        std::fs::write(&csv, accuracy::csv(&points)).map_err(|e| umbra::Error::io(&csv, e))?;
+    }
     if let Some(extra) = &args.extra_curves {
         let more = accuracy::read_points(extra, &names)?;
         eprintln!(
@@ -299,7 +311,13 @@ fn bench_grad_accuracy(args: &BenchArgs) -> umbra::Result<()> {
     let reference_spp = args.reference_spp.max(2);
     let cache = args.out.join("accuracy_cache");
     let (mut points, mut names) = (Vec::new(), Vec::new());
-    for (name, scene) in ga::scenes()? {
+    let csv = args.out.join("grad_accuracy.csv");
+    if args.replot {
+        let all: Vec<&'static str> = ga::scenes()?.into_iter().map(|(n, _)| n).collect();
+        points = accuracy::read_points(&csv, &all)?;
+        names = all;
+    }
+    for (name, scene) in ga::scenes()?.into_iter().filter(|_| !args.replot) {
         let adj = ga::adjoint_histogram(&scene)?;
         eprintln!(
             "bench grad-accuracy: {name}: reference ({reference_spp} spp, cached in {})",
@@ -314,8 +332,9 @@ fn bench_grad_accuracy(args: &BenchArgs) -> umbra::Result<()> {
         names.push(name);
     }
     std::fs::create_dir_all(&args.out).map_err(|e| umbra::Error::io(&args.out, e))?;
-    let csv = args.out.join("grad_accuracy.csv");
-    std::fs::write(&csv, accuracy::csv(&points)).map_err(|e| umbra::Error::io(&csv, e))?;
+    if !args.replot {
+        std::fs::write(&csv, accuracy::csv(&points)).map_err(|e| umbra::Error::io(&csv, e))?;
+    }
     let png = args.out.join("grad_accuracy.png");
     let title =
         "Vertex-gradient error against a converged multi-bounce reference, vs wall-clock time";

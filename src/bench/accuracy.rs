@@ -114,6 +114,28 @@ pub struct Point {
     pub raw_error: f64,
 }
 
+impl Point {
+    /// A point whose raw error is `raw`, against a reference of own error `ref_error`
+    /// (removed in quadrature).
+    pub fn measured(
+        scene: &'static str,
+        method: &str,
+        setting: f64,
+        seconds: f64,
+        raw: f64,
+        ref_error: f64,
+    ) -> Point {
+        Point {
+            scene,
+            method: method.to_string(),
+            setting,
+            seconds,
+            error: (raw * raw - ref_error * ref_error).max(0.0).sqrt(),
+            raw_error: raw,
+        }
+    }
+}
+
 /// A scene's reference: the mean of two half renders, and the relative L2 error of that
 /// mean (half the relative difference of the halves).
 pub struct Reference {
@@ -269,14 +291,9 @@ pub fn curves(name: &'static str, scene: &Scene, r: &Reference, budget: f64) -> 
     let mut out = Vec::new();
     let mut push = |method: &str, setting: f64, data: &[f32], seconds: f64| {
         let raw = rel_l2(data, &r.data);
-        out.push(Point {
-            scene: name,
-            method: method.to_string(),
-            setting,
-            seconds,
-            error: (raw * raw - r.error * r.error).max(0.0).sqrt(),
-            raw_error: raw,
-        });
+        out.push(Point::measured(
+            name, method, setting, seconds, raw, r.error,
+        ));
     };
     for (label, visibility) in [
         ("tri3", Visibility::Centroid),

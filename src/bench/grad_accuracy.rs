@@ -188,14 +188,9 @@ pub fn curves(
             "bench grad-accuracy: {name}: {method} {setting}: {seconds:.3} s, {:.3} %",
             100.0 * raw
         );
-        out.push(Point {
-            scene: name,
-            method: method.to_string(),
-            setting,
-            seconds,
-            error: (raw * raw - r.error * r.error).max(0.0).sqrt(),
-            raw_error: raw,
-        });
+        out.push(Point::measured(
+            name, method, setting, seconds, raw, r.error,
+        ));
     };
     let tri3 = |s: f32| RenderOptions {
         model: Model::Tri3,

@@ -136,6 +136,35 @@ fn export_and_reimport_give_the_same_scene_and_the_same_render() {
 }
 
 #[test]
+fn depths_round_trip_without_laser_sampling_and_unbounded() {
+    // Laser sampling off shifts mitransient's depths by one (the importer's
+    // mitransient_depth_to_bounces); unbounded depth is max_depth = -1.
+    let dir = scratch("depths");
+    let mut a = build(&toml(
+        "confocal",
+        1.2,
+        "irradiance = 1.0",
+        "filter_bounces = 4",
+        "",
+    ))
+    .unwrap();
+    a.render.techniques.laser_sampling = false;
+    let b = round_trip(&a, &dir);
+    assert_eq!(
+        (b.render.max_bounces, b.render.filter_bounces),
+        (5, Some(4))
+    );
+    assert!(!b.render.techniques.laser_sampling);
+    a.render.max_bounces = u32::MAX;
+    a.render.filter_bounces = None;
+    let b = round_trip(&a, &dir);
+    assert_eq!(
+        (b.render.max_bounces, b.render.filter_bounces),
+        (u32::MAX, None)
+    );
+}
+
+#[test]
 fn a_gaussian_kernel_is_written_with_a_warning_and_read_back() {
     let dir = scratch("gauss");
     let a = build(&toml(
@@ -168,9 +197,25 @@ fn what_mitransient_cannot_express_is_refused_naming_the_field() {
     assert_eq!(field(partial_scan), "scan");
     let by_power = build(&toml("confocal", 1.2, "power = 1.0", "", "")).unwrap();
     assert_eq!(field(by_power), "laser.power");
+    let mut filtered = build(&toml("confocal", 1.2, "irradiance = 1.0", "", "")).unwrap();
+    filtered.render.filter_bounces = Some(1);
+    assert_eq!(field(filtered.clone()), "render.filter_bounces");
+    filtered.render.filter_bounces = Some(6);
+    assert_eq!(
+        field(filtered),
+        "render.filter_bounces",
+        "beyond max_bounces = 5"
+    );
+    let mut no_rr = build(&toml("confocal", 1.2, "irradiance = 1.0", "", "")).unwrap();
+    no_rr.render.rr_bounces = 0;
+    assert_eq!(field(no_rr), "render.rr_bounces");
     let mut retro = build(&toml("confocal", 1.2, "irradiance = 1.0", "", "")).unwrap();
     retro.objects[1].reflectance = umbra::scene::Reflectance::Retroreflective;
     assert_eq!(field(retro), "objects[1]");
+    assert!(
+        !dir.join("r_0.obj").exists(),
+        "nothing written for a refused scene"
+    );
 }
 
 #[test]

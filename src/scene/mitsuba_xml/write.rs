@@ -11,10 +11,12 @@
 //!   `gaussian_stddev` in metres of OPL: Umbra reads it back, mitransient 1.3.1 reads it
 //!   and bins with a box. The export says so in its warnings.
 //!
-//! Refused, with the field named: a laser given by power (mitransient's projector has an
-//! irradiance, DESIGN §2), a laser spot of positive radius, a scan that is not the whole
-//! relay wall (the `nlos_capture_meter` scans its rectangle), per-vertex albedo,
-//! retroreflective objects.
+//! Refused, with the field named, before any file is written: a laser given by power
+//! (mitransient's projector has an irradiance, DESIGN §2), a laser spot of positive
+//! radius or standing on its target, a scan that is not the whole relay wall (the
+//! `nlos_capture_meter` scans its rectangle), a bounce filter mitransient cannot select
+//! (it would read it as "off"), Russian roulette from the first bounce, per-vertex
+//! albedo, retroreflective objects.
 //!
 //! Depths are the inverse of the importer's `mitransient_depth_to_bounces`: with laser
 //! sampling `max_depth = max_bounces`, without it `max_bounces + 1`; a bounce filter `f`
@@ -92,6 +94,20 @@ pub fn write(scene: &Scene, xml: &Path) -> Result<Exported> {
     } else {
         i64::from(r.max_bounces) + i64::from(extra)
     };
+    if let Some(f) = r.filter_bounces {
+        // mitransient reads filter_bounces = -1 as "off": a filter that selects nothing
+        // must not become the whole render.
+        if f < 2 + extra || f > r.max_bounces {
+            return Err(refuse(xml, "render.filter_bounces", format!("{f} bounces cannot be selected in mitransient with max_bounces = {} and laser sampling {} (2{} to max_bounces)", r.max_bounces, t.laser_sampling, if extra > 0 { " + 1" } else { "" })));
+        }
+    }
+    if r.rr_bounces == 0 {
+        return Err(refuse(
+            xml,
+            "render.rr_bounces",
+            "mitransient's rr_depth must be at least 1",
+        ));
+    }
     let filter = r
         .filter_bounces
         .map_or(-1, |f| i64::from(f) - 1 - i64::from(extra));
@@ -147,7 +163,13 @@ pub fn write(scene: &Scene, xml: &Path) -> Result<Exported> {
     } else {
         wall.center
     };
-    let dir = (target - laser.origin).normalize_or_zero();
+    let Some(dir) = (target - laser.origin).try_normalize() else {
+        return Err(refuse(
+            xml,
+            "laser.origin",
+            "the laser stands on its target: no beam direction for the projector",
+        ));
+    };
     let (au, av) = (wall.axis_u.normalize(), wall.axis_v.normalize());
     let up = if dir.dot(av).abs() <= dir.dot(au).abs() {
         av
@@ -174,7 +196,7 @@ pub fn write(scene: &Scene, xml: &Path) -> Result<Exported> {
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "scene".into());
     let dir_out = xml.parent().map(Path::to_path_buf).unwrap_or_default();
-    let mut objs = Vec::new();
+    // Everything is checked before any file is written.
     for (i, o) in scene.objects.iter().enumerate() {
         let field = format!("objects[{i}]");
         if o.mesh.vertex_albedo.is_some() {
@@ -187,6 +209,9 @@ pub fn write(scene: &Scene, xml: &Path) -> Result<Exported> {
                 "mitransient has no retroreflective BSDF",
             ));
         }
+    }
+    let mut objs = Vec::new();
+    for (i, o) in scene.objects.iter().enumerate() {
         let file = format!("{stem}_{i}.obj");
         let path = dir_out.join(&file);
         let mut obj = String::with_capacity(40 * o.mesh.positions.len());

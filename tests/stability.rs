@@ -32,39 +32,19 @@ use umbra::geometry::SceneGeometry;
 use umbra::scene::{Model, Scene};
 use umbra::transport::{RenderOptions, Renderer};
 
-const SQUARE: &str = "v -0.1 -0.1 0\nv 0.1 -0.1 0\nv 0.1 0.1 0\nv -0.1 0.1 0\nf 1 4 3 2\n";
-
-/// A 20 cm square at `depth`, turned `angle_deg` about the vertical axis, confocal 4 x 4
-/// over 0.8 m; the film spans the square's returns with 200 bins of `bin` m.
+/// A 20 cm square at `depth`, turned `angle_deg` about the vertical axis and moved off
+/// the scan's symmetry lines, in [`wall_scene`]; the film spans its returns with 200
+/// bins of `bin` m through a Gaussian of 1.5 bins.
 fn square_scene(depth: f32, angle_deg: f32, bin: f32) -> Scene {
-    let start = 2.0 * depth - 0.3;
-    let toml = format!(
-        r#"
-capture_type = "confocal"
-[wall]
-size = [2.0, 2.0]
-albedo = 0.8
-[laser]
-origin = [0.0, -0.5, 1.0]
-[scan]
-resolution = [4, 4]
-size = [0.8, 0.8]
-[film]
-temporal_bins = 200
-bin_width_opl = {bin}
-start_opl = {start}
-kernel = "gaussian"
-sigma_opl = {sigma}
-[[objects]]
-file = "square.obj"
-albedo = 0.8
-transform = {{ rotate = [{{ axis = [0.0, 1.0, 0.0], angle = {angle_deg} }}], translate = [0.03, 0.01, {depth}] }}
-[render]
-model = "tri3"
-"#,
-        sigma = 1.5 * bin
-    );
-    scene(&toml, &[("square.obj", SQUARE)])
+    let (c, s) = (angle_deg.to_radians().cos(), angle_deg.to_radians().sin());
+    let mut obj = String::new();
+    for (x, y) in [(-0.1f32, -0.1f32), (0.1, -0.1), (0.1, 0.1), (-0.1, 0.1)] {
+        // Rotation about +y: (x, z) -> (x c, -x s), then the offset.
+        obj += &format!("v {} {} {}\n", x * c + 0.03, y + 0.01, -x * s + depth);
+    }
+    obj += "f 1 4 3 2\n";
+    let kernel = format!("kernel = \"gaussian\"\nsigma_opl = {}", 1.5 * bin);
+    wall_scene(&obj, 200, bin, 2.0 * depth - 0.3, &kernel)
 }
 
 #[test]
@@ -74,7 +54,10 @@ fn float32_tri3_keeps_its_accuracy_to_100_m_and_degrades_beyond() {
         // Bins of 4 mm at every distance: the OPL's f32 ulp grows as the distance.
         let s = square_scene(depth, 0.0, 0.004);
         let geom = SceneGeometry::build(&s);
-        let opts = RenderOptions::from_scene(&s);
+        let opts = RenderOptions {
+            model: Model::Tri3,
+            ..RenderOptions::from_scene(&s)
+        };
         let e = kernel_vs_reference(&s, &geom, &opts);
         println!("depth {depth} m: kernel vs f64 reference {e:.2e}");
         errors.push(e);

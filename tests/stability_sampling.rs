@@ -15,12 +15,7 @@ use umbra::transport::{RenderOptions, Renderer};
 
 /// The accuracy chart's concave corner (`umbra::bench::accuracy`) on a 4 x 4 scan.
 fn accuracy_corner() -> Scene {
-    let mut s = umbra::bench::accuracy::scenes()
-        .unwrap()
-        .into_iter()
-        .find(|(n, _)| *n == "corner")
-        .unwrap()
-        .1;
+    let mut s = umbra::bench::accuracy::scene("corner").unwrap();
     (s.scan.nx, s.scan.ny) = (4, 4);
     s
 }

@@ -101,6 +101,19 @@ pub fn scenes() -> Result<Vec<(&'static str, Scene)>> {
     ])
 }
 
+/// One of [`scenes`] by its short name.
+pub fn scene(name: &str) -> Result<Scene> {
+    scenes()?
+        .into_iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, s)| s)
+        .ok_or_else(|| {
+            Error::Invalid(format!(
+                "no accuracy scene '{name}' (letter, sphere, bunny, corner)"
+            ))
+        })
+}
+
 /// One measured point of a method's curve.
 #[derive(Clone, Debug)]
 pub struct Point {

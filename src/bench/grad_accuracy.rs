@@ -31,9 +31,9 @@
 //! has no time-shift derivative, see the stability study).
 
 use super::accuracy::{self, Point};
-use super::with_techniques;
+use super::{rel_l2, with_techniques};
 use crate::adjoint::{check, gradient};
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::geometry::mesh::TriMesh;
 use crate::geometry::SceneGeometry;
 use crate::scene::{Model, Scene, Visibility};
@@ -59,11 +59,7 @@ pub fn scenes() -> Result<Vec<(&'static str, Scene)>> {
         0.15 * s
     );
     let square = TriMesh::parse_obj(&square, Path::new("tilted_square.obj"))?;
-    let corner = accuracy::scenes()?
-        .into_iter()
-        .find(|(n, _)| *n == "corner")
-        .map(|(_, s)| s)
-        .ok_or_else(|| Error::Invalid("accuracy scenes: no corner".into()))?;
+    let corner = accuracy::scene("corner")?;
     Ok(vec![
         (
             "square",
@@ -94,12 +90,6 @@ pub fn adjoint_histogram(scene: &Scene) -> Result<Vec<f32>> {
 /// All vertex coordinates' derivatives, object by object, vertex by vertex, x y z.
 fn flat(g: &crate::adjoint::Gradient) -> Vec<f64> {
     g.vertices.iter().flatten().flatten().copied().collect()
-}
-
-fn rel(a: &[f64], b: &[f64]) -> f64 {
-    let d: f64 = a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum();
-    let n: f64 = b.iter().map(|y| y * y).sum();
-    (d / n).sqrt()
 }
 
 /// The gradient of `⟨δH, H⟩` by the adjoint pass of `opts.model`, and its time
@@ -183,7 +173,7 @@ pub fn curves(
 ) -> Result<Vec<Point>> {
     let mut out = Vec::new();
     let mut push = |method: &str, setting: f64, g: &[f64], seconds: f64| {
-        let raw = rel(g, &r.grad);
+        let raw = rel_l2(g, &r.grad);
         eprintln!(
             "bench grad-accuracy: {name}: {method} {setting}: {seconds:.3} s, {:.3} %",
             100.0 * raw

@@ -232,9 +232,13 @@ pub(crate) fn reference_halves(
 }
 
 /// Relative L2 difference `‖a − b‖ / ‖b‖`.
-pub fn rel_l2(a: &[f32], b: &[f32]) -> f64 {
-    let d: f64 = a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum();
-    let n: f64 = b.iter().map(|y| (*y as f64).powi(2)).sum();
+pub fn rel_l2<T: Copy + Into<f64>>(a: &[T], b: &[T]) -> f64 {
+    let d: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(&x, &y)| (x.into() - y.into()).powi(2))
+        .sum();
+    let n: f64 = b.iter().map(|&y| y.into().powi(2)).sum();
     (d / n).sqrt()
 }
 

@@ -310,26 +310,26 @@ fn bench_grad_accuracy(args: &BenchArgs) -> umbra::Result<()> {
     use umbra::bench::{accuracy, grad_accuracy as ga};
     let reference_spp = args.reference_spp.max(2);
     let cache = args.out.join("accuracy_cache");
-    let (mut points, mut names) = (Vec::new(), Vec::new());
     let csv = args.out.join("grad_accuracy.csv");
-    if args.replot {
-        let all: Vec<&'static str> = ga::scenes()?.into_iter().map(|(n, _)| n).collect();
-        points = accuracy::read_points(&csv, &all)?;
-        names = all;
-    }
-    for (name, scene) in ga::scenes()?.into_iter().filter(|_| !args.replot) {
-        let adj = ga::adjoint_histogram(&scene)?;
+    let scenes = ga::scenes()?;
+    let names: Vec<&'static str> = scenes.iter().map(|(n, _)| *n).collect();
+    let mut points = if args.replot {
+        accuracy::read_points(&csv, &names)?
+    } else {
+        Vec::new()
+    };
+    for (name, scene) in scenes.iter().filter(|_| !args.replot) {
+        let adj = ga::adjoint_histogram(scene)?;
         eprintln!(
             "bench grad-accuracy: {name}: reference ({reference_spp} spp, cached in {})",
             cache.display()
         );
-        let r = ga::reference(name, &scene, &adj, reference_spp, &cache)?;
+        let r = ga::reference(name, scene, &adj, reference_spp, &cache)?;
         println!(
             "{name}: reference gradient {reference_spp} spp, its own error {:.3} %",
             100.0 * r.error
         );
-        points.extend(ga::curves(name, &scene, &adj, &r, args.budget)?);
-        names.push(name);
+        points.extend(ga::curves(name, scene, &adj, &r, args.budget)?);
     }
     std::fs::create_dir_all(&args.out).map_err(|e| umbra::Error::io(&args.out, e))?;
     if !args.replot {

@@ -197,7 +197,7 @@ fn exhaustive_h_is_t_lx_ly_sx_sy() {
     let h: Vec<f32> = ds.read_raw().unwrap();
     let (nx, ny, bins) = (3, 2, 7);
     for (lx, ly, sx, sy, b) in [(0, 0, 0, 0, 0), (2, 1, 0, 1, 3), (1, 0, 2, 1, 6)] {
-        let umbra = t.data[(((ly * nx + lx) * ny + sy) * nx + sx) * bins + b];
+        let umbra = t.data[(((sy * nx + sx) * ny + ly) * nx + lx) * bins + b];
         let ytal = h[(((b * nx + lx) * ny + ly) * nx + sx) * ny + sy];
         assert_eq!(umbra, ytal);
     }

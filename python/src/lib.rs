@@ -70,7 +70,7 @@ impl PyScene {
 
 #[pymethods]
 impl PyScene {
-    /// Shape of a render: `(sy, sx, T)` or `(ly, lx, sy, sx, T)` (mitransient's layout).
+    /// Shape of a render: `(sy, sx, T)` or `(sy, sx, ly, lx, T)` (mitransient's layout).
     #[getter]
     fn shape(&self) -> Vec<usize> {
         self.inner.output_shape()

@@ -155,7 +155,7 @@ def test_ytal_reads_an_exhaustive_capture(tmp_path: Path, umbra_bin: str):
     assert npy.shape == (sy, sx, sy, sx, 96) and npy.sum() > 0
     meta, H, sensor, laser = read_with_ytal(python, tmp_path / "h.h5", tmp_path)
     assert meta["H_format"] == "T_Lx_Ly_Sx_Sy"
-    # (ly, lx, sy, sx, T) -> (T, Lx, Ly, Sx, Sy)
+    # (sy, sx, ly, lx, T) -> (T, Lx, Ly, Sx, Sy)
     assert H.shape == (96, sx, sy, sx, sy)
-    assert np.array_equal(H, npy.transpose(4, 1, 0, 3, 2))
+    assert np.array_equal(H, npy.transpose(4, 3, 2, 1, 0))
     assert np.array_equal(laser, sensor) and sensor.shape == (sx, sy, 3)

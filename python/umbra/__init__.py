@@ -39,7 +39,7 @@ def load_scene(source: "str | os.PathLike | Mapping[str, Any]", base_dir: "str |
 def render(scene: Scene, spp: "int | None" = None, model: "str | None" = None,
            seed: "int | None" = None, threads: "int | None" = None) -> np.ndarray:
     """The scene's transient, float32, in mitransient's layout ``(sy, sx, T)`` (or
-    ``(ly, lx, sy, sx, T)`` for exhaustive capture). Unset arguments come from the scene.
+    ``(sy, sx, ly, lx, T)`` for exhaustive capture). Unset arguments come from the scene.
     Same seed, same output, whatever the thread count."""
     return _render(scene, spp=spp, model=model, seed=seed, threads=threads)
 

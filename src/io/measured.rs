@@ -49,7 +49,7 @@ pub const GEOMETRY_TOLERANCE: f32 = 1e-4;
 /// the capture geometry the file implies (`None` where the file does not say).
 #[derive(Clone, Debug)]
 pub struct Measured {
-    /// `(sy, sx, T)` single/confocal; `(ly, lx, sy, sx, T)` exhaustive.
+    /// `(sy, sx, T)` single/confocal; `(sy, sx, ly, lx, T)` exhaustive.
     pub transient: Transient,
     pub capture: Option<CaptureType>,
     /// Sensor grid (= laser grid for confocal).
@@ -97,7 +97,7 @@ fn read_npy_measured(path: &Path) -> Result<Measured> {
         return Err(Error::scene(
             path,
             format!(
-                "the array has shape {:?}: expected (sy, sx, T) or (ly, lx, sy, sx, T), no empty axis",
+                "the array has shape {:?}: expected (sy, sx, T) or (sy, sx, ly, lx, T), no empty axis",
                 transient.shape
             ),
         ));

@@ -53,7 +53,7 @@ pub fn write_transient(path: &Path, t: &Transient) -> Result<()> {
     }
 }
 
-/// `.npy`, float32, shape `(sy, sx, T)` or `(ly, lx, sy, sx, T)`, C order.
+/// `.npy`, float32, shape `(sy, sx, T)` or `(sy, sx, ly, lx, T)`, C order.
 pub fn write_npy(path: &Path, t: &Transient) -> Result<()> {
     let arr = ArrayD::from_shape_vec(IxDyn(&t.shape), t.data.clone())
         .map_err(|e| Error::Invalid(format!("transient shape: {e}")))?;

@@ -33,7 +33,7 @@ struct Meas {
 }
 
 /// Filtered backprojection of `data` (the scene's layout, `(sy, sx, T)` or
-/// `(ly, lx, sy, sx, T)`, `T = scene.film.temporal_bins`) into `grid`, unweighted
+/// `(sy, sx, ly, lx, T)`, `T = scene.film.temporal_bins`) into `grid`, unweighted
 /// ([`Falloff::None`]).
 pub fn backproject(
     scene: &Scene,

@@ -360,7 +360,8 @@ impl Scene {
     }
 
     /// Laser and sensor wall points of measurement `m`, in the output's row-major order
-    /// (`(sy, sx)` or `(ly, lx, sy, sx)`).
+    /// (`(sy, sx)` or, exhaustive, `(sy, sx, ly, lx)`: mitransient 1.3.1's order, sensor
+    /// point outermost).
     pub fn measurement_points(&self, m: usize) -> (Vec3, Vec3) {
         match self.capture {
             CaptureType::Single => (self.laser.target, self.scan.point(m)),
@@ -370,7 +371,7 @@ impl Scene {
             }
             CaptureType::Exhaustive => {
                 let n = self.scan.len();
-                (self.scan.point(m / n), self.scan.point(m % n))
+                (self.scan.point(m % n), self.scan.point(m / n))
             }
         }
     }

@@ -53,7 +53,7 @@ pub struct Progress {
 #[derive(Clone, Debug)]
 pub struct Transient {
     pub data: Vec<f32>,
-    /// `(sy, sx, T)` or `(ly, lx, sy, sx, T)`.
+    /// `(sy, sx, T)` or `(sy, sx, ly, lx, T)`.
     pub shape: Vec<usize>,
 }
 

@@ -4,7 +4,7 @@
 //!
 //! | dataset | y-tal's meaning | Umbra |
 //! | --- | --- | --- |
-//! | `H` | float32 transient, `(T, Sx, Sy)` or `(T, Lx, Ly, Sx, Sy)` | `(sy, sx, T)` / `(ly, lx, sy, sx, T)`, converted here |
+//! | `H` | float32 transient, `(T, Sx, Sy)` or `(T, Lx, Ly, Sx, Sy)` | `(sy, sx, T)` / `(sy, sx, ly, lx, T)`, converted here |
 //! | `H_format` | enum `HFormat` (int32, stored as a `(1,)` array): `T_Sx_Sy` = 1, `T_Lx_Ly_Sx_Sy` = 2 | we read those two |
 //! | `sensor_grid_xyz` | `(Sx, Sy, 3)` wall points, indexed `[x, y]` | a regular [`ScanGrid`], inferred |
 //! | `laser_grid_xyz` | `(1, 1, 3)` for one laser point, the sensor grid for confocal, `(Lx, Ly, 3)` exhaustive | capture type, laser point |
@@ -315,12 +315,12 @@ fn permute(data: &[f32], shape: &[usize], perm: &[usize]) -> (Vec<f32>, Vec<usiz
     (out, out_shape)
 }
 
-/// y-tal `(T, Sx, Sy)` -> Umbra `(sy, sx, T)`; `(T, Lx, Ly, Sx, Sy)` -> `(ly, lx, sy, sx, T)`.
+/// y-tal `(T, Sx, Sy)` -> Umbra `(sy, sx, T)`; `(T, Lx, Ly, Sx, Sy)` -> `(sy, sx, ly, lx, T)`.
 const FROM_YTAL_3: [usize; 3] = [2, 1, 0];
-const FROM_YTAL_5: [usize; 5] = [2, 1, 4, 3, 0];
+const FROM_YTAL_5: [usize; 5] = [4, 3, 2, 1, 0];
 /// Umbra -> y-tal.
 const TO_YTAL_3: [usize; 3] = [2, 1, 0];
-const TO_YTAL_5: [usize; 5] = [4, 1, 0, 3, 2];
+const TO_YTAL_5: [usize; 5] = [4, 3, 2, 1, 0];
 
 /// Reads a y-tal capture (see the module docs); errors name the file and the dataset.
 pub fn read_ytal(path: &Path) -> Result<Measured> {

@@ -26,9 +26,23 @@ pub(crate) fn evaluate<O: Objective>(
     problem: &mut Problem<O>,
     theta: &Vec<f64>,
 ) -> Option<(f64, Vec<f64>)> {
-    let cost = problem.cost(theta).ok()?;
-    let grad = problem.gradient(theta).ok()?;
-    (cost.is_finite() && grad.iter().all(|g| g.is_finite())).then_some((cost, grad))
+    evaluate_or_why(problem, theta).ok()
+}
+
+/// [`evaluate`], with the reason when it fails (the renderer's own message).
+fn evaluate_or_why<O: Objective>(
+    problem: &mut Problem<O>,
+    theta: &Vec<f64>,
+) -> Result<(f64, Vec<f64>), String> {
+    let cost = problem.cost(theta).map_err(|e| e.to_string())?;
+    let grad = problem.gradient(theta).map_err(|e| e.to_string())?;
+    if !cost.is_finite() {
+        return Err(format!("the loss is {cost}"));
+    }
+    if let Some(i) = grad.iter().position(|g| !g.is_finite()) {
+        return Err(format!("gradient entry {i} is {}", grad[i]));
+    }
+    Ok((cost, grad))
 }
 
 /// The state's initial parameters projected onto the feasible set and evaluated; an
@@ -45,8 +59,8 @@ pub(crate) fn start<O: Objective>(
     if let Some(p) = problem.problem.as_ref() {
         p.project(&mut theta);
     }
-    let (cost, grad) = evaluate(problem, &theta)
-        .ok_or_else(|| Error::msg("the initial mesh cannot be evaluated (NaN or render error)"))?;
+    let (cost, grad) = evaluate_or_why(problem, &theta)
+        .map_err(|why| Error::msg(format!("the initial mesh cannot be evaluated: {why}")))?;
     Ok(state.param(theta).cost(cost).gradient(grad))
 }
 

@@ -111,16 +111,7 @@ pub fn gradient(
     progress: Option<&Progress>,
 ) -> Result<Gradient> {
     let model = opts.model;
-    if model == Model::Auto {
-        return Err(Error::Invalid(
-            "gradients: resolve auto to a model first".into(),
-        ));
-    }
-    if model == Model::Path && scene.laser.spot_radius > 0.0 {
-        return Err(Error::Invalid(
-            "gradients of the path model need a point laser spot (spot_radius = 0)".into(),
-        ));
-    }
+    crate::transport::gate::check(scene, opts, crate::transport::gate::Pass::Gradient)?;
     let tri3 = (model == Model::Tri3).then(|| Tri3Mesh::build(scene, geom, opts.subdivision));
     let film = Film::new(&scene.film);
     let (measurements, bins) = (scene.num_measurements(), film.bins);
@@ -150,6 +141,13 @@ pub fn gradient(
                 }
                 let ctx = MeasurementCtx::new(scene, geom, &film, m);
                 let adj = &adjoint[m * bins..(m + 1) * bins];
+                if !ctx.legs_visible {
+                    if let Some(p) = progress {
+                        let work = tri3.as_ref().map_or(spp as u64, |t| t.len() as u64);
+                        p.work_done.fetch_add(work, Ordering::Relaxed);
+                    }
+                    continue;
+                }
                 if let Some(mesh) = &tri3 {
                     tri3_exact::adjoint_measurement(
                         mesh,

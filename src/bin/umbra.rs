@@ -7,10 +7,12 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use umbra::geometry::SceneGeometry;
-use umbra::scene::Visibility;
 use umbra::scene::{Model, Scene};
-use umbra::transport::{Progress, RenderOptions, Renderer};
+use umbra::transport::{Progress, Renderer};
 
+/// The render options shared by render, grad and gradcheck.
+#[path = "umbra_cli/flags.rs"]
+mod flags;
 /// `umbra grad`, `umbra gradcheck` and `umbra bench grad`.
 #[path = "umbra_cli/grad.rs"]
 mod grad_cli;
@@ -90,43 +92,11 @@ struct RenderArgs {
     /// capture format). PNG previews are written next to it.
     #[arg(short, long, default_value = "transient.npy")]
     output: PathBuf,
-    /// Light-transport model: tri3 (deterministic per-triangle three-bounce), mc3 (Monte
-    /// Carlo three-bounce), path (multi-bounce) or auto (the cheapest accurate enough).
-    #[arg(long)]
-    model: Option<String>,
-    /// tri3: shadow rays: none, centroid or subtriangle.
-    #[arg(long)]
-    visibility: Option<String>,
-    /// tri3: subdivision threshold: largest h²/(r·w) of a sub-triangle (edge h, height
-    /// above the wall r, bin width w), i.e. the OPL curvature across it in bins.
-    #[arg(long)]
-    subdivision: Option<f32>,
-    /// auto: the relative error the chosen model may leave (e.g. 0.01).
-    #[arg(long)]
-    max_error: Option<f32>,
-    /// Samples per measurement (overrides the scene).
-    #[arg(long)]
-    spp: Option<u32>,
-    /// Random seed (overrides the scene).
-    #[arg(long)]
-    seed: Option<u64>,
+    #[command(flatten)]
+    flags: flags::RenderFlags,
     /// Worker threads (default: all cores). The output does not depend on it.
     #[arg(long)]
     threads: Option<usize>,
-    /// Longest path in bounces, laser spot and sensor point included (3 = one hidden
-    /// bounce); -1 for unbounded. Overrides the scene.
-    #[arg(long, allow_negative_numbers = true)]
-    max_depth: Option<i64>,
-    /// Override the scene's laser sampling (NEE to the laser spot): true or false.
-    #[arg(long)]
-    laser_sampling: Option<bool>,
-    /// Override hidden-geometry (area) sampling: true or false.
-    #[arg(long)]
-    hidden_geometry_sampling: Option<bool>,
-    /// Override BSDF (cosine) sampling: true or false. With hidden-geometry sampling
-    /// also on, the two are combined by multiple importance sampling.
-    #[arg(long)]
-    bsdf_sampling: Option<bool>,
     /// Set a Mitsuba XML `$name` parameter (overrides its <default>), e.g. -D spp=64.
     #[arg(short = 'D', value_name = "NAME=VALUE")]
     define: Vec<String>,
@@ -194,63 +164,7 @@ fn render(args: RenderArgs) -> umbra::Result<()> {
     for w in &scene.warnings {
         eprintln!("warning: {w}");
     }
-    if let Some(d) = args.max_depth {
-        scene.render.max_bounces = match d {
-            -1 => u32::MAX,
-            d if d >= 3 => d as u32,
-            d => {
-                return Err(umbra::Error::Invalid(format!(
-                    "--max-depth: must be -1 or >= 3 bounces, got {d}"
-                )))
-            }
-        };
-    }
-    let t = &mut scene.render.techniques;
-    t.laser_sampling = args.laser_sampling.unwrap_or(t.laser_sampling);
-    t.hidden_geometry_sampling = args
-        .hidden_geometry_sampling
-        .unwrap_or(t.hidden_geometry_sampling);
-    t.bsdf_sampling = args.bsdf_sampling.unwrap_or(t.bsdf_sampling);
-    let mut opts = RenderOptions::from_scene(&scene);
-    if let Some(m) = &args.model {
-        opts.model = Model::parse(m).ok_or_else(|| {
-            umbra::Error::Invalid(format!(
-                "--model: '{m}' is not one of tri3, mc3, path, auto"
-            ))
-        })?;
-    }
-    if let Some(s) = args.spp {
-        if s == 0 {
-            return Err(umbra::Error::Invalid("--spp: must be at least 1".into()));
-        }
-        opts.spp = s;
-    }
-    if let Some(s) = args.seed {
-        opts.seed = s;
-    }
-    if let Some(v) = &args.visibility {
-        opts.visibility = Visibility::parse(v).ok_or_else(|| {
-            umbra::Error::Invalid(format!(
-                "--visibility: '{v}' is not one of none, centroid, subtriangle"
-            ))
-        })?;
-    }
-    if let Some(s) = args.subdivision {
-        if !(s.is_finite() && s > 0.0) {
-            return Err(umbra::Error::Invalid(format!(
-                "--subdivision: must be > 0, got {s}"
-            )));
-        }
-        opts.subdivision = s;
-    }
-    if let Some(e) = args.max_error {
-        if !(e.is_finite() && e > 0.0) {
-            return Err(umbra::Error::Invalid(format!(
-                "--max-error: must be > 0, got {e}"
-            )));
-        }
-        opts.max_error = e;
-    }
+    let opts = args.flags.overrides().apply(&mut scene)?;
     let pool = {
         let mut b = rayon::ThreadPoolBuilder::new();
         if let Some(t) = args.threads {

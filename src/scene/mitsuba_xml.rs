@@ -360,6 +360,8 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
             },
             visibility: super::Visibility::Centroid,
             subdivision: super::DEFAULT_SUBDIVISION,
+            // mitransient traces the laser beam and the detector's view.
+            visible_legs: true,
             max_error: super::DEFAULT_MAX_ERROR,
         },
     })

@@ -302,6 +302,11 @@ pub struct RenderSettings {
     pub subdivision: f32,
     /// `auto`: the relative error the chosen model may leave (fraction, e.g. 0.01).
     pub max_error: f32,
+    /// Test the visible legs (laser -> laser spot, sensor point -> detector) for
+    /// occlusion by hidden objects; a blocked measurement records nothing, as in
+    /// mitransient. `false` skips the two rays per measurement when the user knows the
+    /// legs are clear.
+    pub visible_legs: bool,
 }
 
 /// Default `subdivision` of the `tri3` model (see `BENCHMARKS.md` for its error).

@@ -173,6 +173,8 @@ struct RenderT {
     subdivision: f32,
     #[serde(default = "default_max_error")]
     max_error: f32,
+    #[serde(default = "yes")]
+    visible_legs: bool,
 }
 
 fn default_visibility() -> String {
@@ -440,6 +442,7 @@ pub fn parse(
         visibility,
         subdivision: r.subdivision,
         max_error: r.max_error,
+        visible_legs: r.visible_legs,
     };
 
     let scene = Scene {

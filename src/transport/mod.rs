@@ -12,6 +12,7 @@
 //! number of threads.
 
 pub mod auto;
+pub mod gate;
 pub mod mc3;
 pub mod path;
 pub mod render;
@@ -103,7 +104,13 @@ pub struct MeasurementCtx<'a> {
     /// Sensor point on the wall.
     pub x_s: Vec3,
     pub n_w: Vec3,
-    /// Power `P(x_l)` delivered to the spot (DESIGN §2).
+    /// Whether the visible legs are clear: the laser reaches `x_l` and the detector sees
+    /// `x_s` (both lines tested against the hidden objects unless the scene's
+    /// `render.visible_legs` is off; a finite spot is tested along its central ray).
+    pub legs_visible: bool,
+    /// Power `P(x_l)` delivered to the spot (DESIGN §2), times the visible legs'
+    /// visibility: 0 for a blocked measurement, so every model records nothing for it
+    /// and its gradient is zero.
     pub power: f32,
     /// Wall BRDF `ρ_w / π`.
     pub f_wall: f32,
@@ -125,13 +132,21 @@ impl<'a> MeasurementCtx<'a> {
                 crate::film::GAUSS_CUTOFF * sigma_opl as f64
             }
         };
+        let legs_visible = !scene.render.visible_legs
+            || !(geom.occluded(scene.laser.origin, x_l)
+                || geom.occluded(x_s, scene.detector.origin));
         MeasurementCtx {
             scene,
             geom,
             x_l,
             x_s,
             n_w,
-            power: scene.laser.power_at(x_l, n_w),
+            legs_visible,
+            power: if legs_visible {
+                scene.laser.power_at(x_l, n_w)
+            } else {
+                0.0
+            },
             f_wall: scene.wall.albedo * FRAC_1_PI,
             opl_sensor_leg: if scene.account_first_and_last_bounces {
                 (x_s - scene.detector.origin).length()

@@ -7,6 +7,7 @@
 //! on the number of threads.
 
 use super::auto::{choose_model, AutoChoice};
+use super::gate::{self, Pass};
 use super::tri3::{self, Tri3Mesh, Tri3Scratch};
 use super::{run_samples, HistogramSink, MeasurementCtx, BLOCK_SPP};
 use crate::error::{Error, Result};
@@ -78,15 +79,22 @@ pub struct Renderer<'a> {
 
 impl<'a> Renderer<'a> {
     pub fn new(scene: &'a Scene, geom: &'a SceneGeometry, opts: &RenderOptions) -> Result<Self> {
-        check_reflectance(scene, opts.model)?;
+        gate::check(scene, opts, Pass::Render)?;
         let (model, auto_choice) = match opts.model {
             Model::Auto => {
                 let c = choose_model(scene, geom, opts)?;
+                gate::check(
+                    scene,
+                    &RenderOptions {
+                        model: c.model,
+                        ..*opts
+                    },
+                    Pass::Render,
+                )?;
                 (c.model, Some(c))
             }
             m => (m, None),
         };
-        check_model(scene, model)?;
         let tri3 = (model == Model::Tri3).then(|| Tri3Mesh::build(scene, geom, opts.subdivision));
         Ok(Renderer {
             scene,
@@ -101,11 +109,14 @@ impl<'a> Renderer<'a> {
 
     /// Units of work the render does (for progress bars): samples or triangle pairs.
     pub fn total_work(&self) -> u64 {
-        let per_measurement = match &self.tri3 {
+        self.scene.num_measurements() as u64 * self.work_per_measurement()
+    }
+
+    fn work_per_measurement(&self) -> u64 {
+        match &self.tri3 {
             Some(mesh) => mesh.len() as u64,
             None => self.opts.spp as u64,
-        };
-        self.scene.num_measurements() as u64 * per_measurement
+        }
     }
 
     /// What a unit of work is called.
@@ -149,6 +160,13 @@ impl<'a> Renderer<'a> {
                         return;
                     }
                     let ctx = MeasurementCtx::new(self.scene, self.geom, &self.film, m);
+                    if !ctx.legs_visible {
+                        if let Some(p) = progress {
+                            p.work_done
+                                .fetch_add(self.work_per_measurement(), Ordering::Relaxed);
+                        }
+                        return;
+                    }
                     if let Some(mesh) = &self.tri3 {
                         let v = self.opts.visibility;
                         tri3::render_measurement(mesh, &ctx, &self.film, v, scratch, out);
@@ -227,56 +245,6 @@ impl<'a> Renderer<'a> {
         let inv_spp = 1.0 / spp as f64;
         acc.iter_mut().for_each(|a| *a *= inv_spp);
         Some(acc)
-    }
-}
-
-/// Checks that `model` can render `scene` with its settings.
-/// Retroreflective objects exist only in the confocal `tri3` model.
-fn check_reflectance(scene: &Scene, model: Model) -> Result<()> {
-    let Some((i, o)) = scene
-        .objects
-        .iter()
-        .enumerate()
-        .find(|(_, o)| o.reflectance == crate::scene::Reflectance::Retroreflective)
-    else {
-        return Ok(());
-    };
-    let problem = if scene.capture != crate::scene::CaptureType::Confocal {
-        Some(format!(
-            "needs confocal capture (the capture is {})",
-            scene.capture.name()
-        ))
-    } else if model != Model::Tri3 {
-        Some(format!(
-            "is modelled by tri3 only (the model is {})",
-            model.name()
-        ))
-    } else {
-        None
-    };
-    match problem {
-        Some(p) => Err(Error::Invalid(format!(
-            "objects[{i}] ({}): retroreflective reflectance {p}",
-            o.name
-        ))),
-        None => Ok(()),
-    }
-}
-
-fn check_model(scene: &Scene, model: Model) -> Result<()> {
-    let t = &scene.render.techniques;
-    match model {
-        Model::Path if !t.bsdf_sampling && !t.hidden_geometry_sampling => Err(Error::Invalid(
-            "path model: bsdf_sampling and hidden_geometry_sampling are both off, so no path can leave the wall".into(),
-        )),
-        Model::Path if !t.laser_sampling && scene.laser.spot_radius <= 0.0 => Err(Error::Invalid(
-            "path model: with laser sampling off, paths must hit the lit spot, which needs laser.spot_radius > 0".into(),
-        )),
-        Model::Tri3 if scene.laser.spot_radius > 0.0 => Err(Error::Invalid(
-            "tri3 model: the laser spot must be a point (spot_radius = 0); use mc3 or path".into(),
-        )),
-        Model::Auto => Err(Error::Invalid("auto must resolve to a model".into())),
-        _ => Ok(()),
     }
 }
 

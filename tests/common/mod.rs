@@ -151,3 +151,123 @@ pub fn kernel_vs_reference(scene: &Scene, geom: &SceneGeometry, opts: &RenderOpt
     assert!(den > 0.0, "the reference render is zero");
     (num / den).sqrt()
 }
+
+/// The shared test-scene builder: a wall at z = 0, a laser and detector in front of it,
+/// a scan grid, a film and hidden objects given as OBJ text. `toml()` is the Umbra TOML
+/// it stands for, `scene()` parses it, `write(dir)` puts the TOML and OBJ files on disk
+/// for CLI tests: one description for the library and the command line.
+#[derive(Clone, Debug)]
+pub struct SceneSpec {
+    pub capture: &'static str,
+    pub laser_origin: [f32; 3],
+    pub detector_origin: [f32; 3],
+    pub spot_radius: f32,
+    pub scan: [u32; 2],
+    pub scan_size: f32,
+    pub bins: u32,
+    pub bin_width: f32,
+    pub start_opl: f32,
+    /// `Some(sigma)`: a Gaussian kernel.
+    pub sigma_opl: Option<f32>,
+    /// (OBJ text, albedo, reflectance)
+    pub objects: Vec<(String, f32, &'static str)>,
+    pub model: &'static str,
+    pub spp: u32,
+    /// Extra `[render]` lines, e.g. `"visible_legs = false"`.
+    pub render_extra: Vec<String>,
+}
+
+impl Default for SceneSpec {
+    fn default() -> Self {
+        SceneSpec {
+            capture: "confocal",
+            laser_origin: [0.3, -0.4, 1.0],
+            detector_origin: [0.3, -0.4, 1.0],
+            spot_radius: 0.0,
+            scan: [4, 4],
+            scan_size: 1.0,
+            bins: 200,
+            bin_width: 0.01,
+            start_opl: 0.8,
+            sigma_opl: Some(0.012),
+            objects: vec![(square_obj([0.05, 0.02, 0.6], 0.3), 0.8, "lambertian")],
+            model: "mc3",
+            spp: 32,
+            render_extra: Vec::new(),
+        }
+    }
+}
+
+impl SceneSpec {
+    pub fn toml(&self) -> String {
+        let v = |a: [f32; 3]| format!("[{:?}, {:?}, {:?}]", a[0], a[1], a[2]);
+        let mut t = format!(
+            "capture_type = \"{}\"\n[wall]\nsize = [2.0, 2.0]\n[laser]\norigin = {}\nspot_radius = {:?}\n\
+             [detector]\norigin = {}\n[scan]\nresolution = [{}, {}]\nsize = [{:?}, {:?}]\n\
+             [film]\ntemporal_bins = {}\nbin_width_opl = {:?}\nstart_opl = {:?}\n",
+            self.capture,
+            v(self.laser_origin),
+            self.spot_radius,
+            v(self.detector_origin),
+            self.scan[0],
+            self.scan[1],
+            self.scan_size,
+            self.scan_size,
+            self.bins,
+            self.bin_width,
+            self.start_opl
+        );
+        if let Some(s) = self.sigma_opl {
+            t += &format!("kernel = \"gaussian\"\nsigma_opl = {s:?}\n");
+        }
+        for (i, (_, albedo, refl)) in self.objects.iter().enumerate() {
+            t += &format!(
+                "[[objects]]\nfile = \"obj{i}.obj\"\nalbedo = {albedo:?}\nreflectance = \"{refl}\"\n"
+            );
+        }
+        t += &format!("[render]\nmodel = \"{}\"\nspp = {}\n", self.model, self.spp);
+        for l in &self.render_extra {
+            t += l;
+            t.push('\n');
+        }
+        t
+    }
+
+    fn objs(&self) -> Vec<(String, String)> {
+        self.objects
+            .iter()
+            .enumerate()
+            .map(|(i, (obj, _, _))| (format!("obj{i}.obj"), obj.clone()))
+            .collect()
+    }
+
+    pub fn try_scene(&self) -> umbra::Result<Scene> {
+        let objs = self.objs();
+        let refs: Vec<(&str, &str)> = objs.iter().map(|(a, b)| (a.as_str(), b.as_str())).collect();
+        try_scene(&self.toml(), &refs)
+    }
+
+    pub fn scene(&self) -> Scene {
+        self.try_scene()
+            .unwrap_or_else(|e| panic!("test scene: {e}\n{}", self.toml()))
+    }
+
+    /// Writes `scene.toml` and its OBJ files into `dir`; returns the TOML's path.
+    pub fn write(&self, dir: &Path) -> std::path::PathBuf {
+        std::fs::create_dir_all(dir).unwrap();
+        for (name, text) in self.objs() {
+            std::fs::write(dir.join(name), text).unwrap();
+        }
+        let p = dir.join("scene.toml");
+        std::fs::write(&p, self.toml()).unwrap();
+        p
+    }
+}
+
+/// A fresh temporary directory for one test.
+pub fn tmp_dir(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("umbra-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}

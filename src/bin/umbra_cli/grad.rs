@@ -1,5 +1,6 @@
 //! The gradient commands of the `umbra` CLI: `grad`, `gradcheck` and `bench grad`.
 
+use super::flags::RenderFlags;
 use super::{load_scene, BenchArgs};
 use std::path::PathBuf;
 use umbra::scene::Model;
@@ -21,15 +22,8 @@ pub struct GradArgs {
     /// per object if there are several), `albedo` (one per object), `vertex_albedo[_<k>]`.
     #[arg(short, long, default_value = "grad.npz")]
     output: PathBuf,
-    /// Model: tri3, mc3 or path.
-    #[arg(long, default_value = "mc3")]
-    model: String,
-    /// Samples per measurement (overrides the scene).
-    #[arg(long)]
-    spp: Option<u32>,
-    /// Random seed (overrides the scene).
-    #[arg(long)]
-    seed: Option<u64>,
+    #[command(flatten)]
+    flags: RenderFlags,
     /// Loss: l2 or l2-normalized (per scan point).
     #[arg(long, default_value = "l2")]
     loss: String,
@@ -45,9 +39,8 @@ pub struct GradArgs {
 pub struct GradcheckArgs {
     /// Scene file: Umbra TOML (.toml) or mitransient-style Mitsuba XML (.xml).
     scene: PathBuf,
-    /// Model: tri3, mc3 or path.
-    #[arg(long, default_value = "mc3")]
-    model: String,
+    #[command(flatten)]
+    flags: RenderFlags,
     /// Vertex coordinates checked per object (plus each object's albedo).
     #[arg(long, default_value_t = 6)]
     params: usize,
@@ -58,12 +51,6 @@ pub struct GradcheckArgs {
     /// Largest accepted relative error (against max(|fd|, 2 % of the largest |fd|)).
     #[arg(long, default_value_t = 0.01)]
     tolerance: f64,
-    /// Samples per measurement (overrides the scene).
-    #[arg(long)]
-    spp: Option<u32>,
-    /// Random seed (overrides the scene), for the samples and the parameter picks.
-    #[arg(long)]
-    seed: Option<u64>,
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
@@ -74,24 +61,12 @@ pub struct GradcheckArgs {
 
 pub fn grad(args: GradArgs) -> umbra::Result<()> {
     use umbra::adjoint::{self, Loss};
-    let scene = load_scene(Some(&args.scene), &args.define)?;
+    let mut scene = load_scene(Some(&args.scene), &args.define)?;
     for w in &scene.warnings {
         eprintln!("warning: {w}");
     }
-    let mut opts = RenderOptions::from_scene(&scene);
-    opts.model = Model::parse(&args.model).ok_or_else(|| {
-        umbra::Error::Invalid(format!(
-            "--model: '{}' is not one of tri3, mc3, path",
-            args.model
-        ))
-    })?;
-    if let Some(s) = args.spp {
-        if s == 0 {
-            return Err(umbra::Error::Invalid("--spp: must be at least 1".into()));
-        }
-        opts.spp = s;
-    }
-    opts.seed = args.seed.unwrap_or(opts.seed);
+    let mut opts = args.flags.overrides().apply(&mut scene)?;
+    resolve_auto(&scene, &mut opts)?;
     let loss: Loss = args.loss.parse()?;
     if let Some(w) = adjoint::box_kernel_warning(&scene, opts.model) {
         eprintln!("warning: {w}");
@@ -157,18 +132,9 @@ pub fn grad(args: GradArgs) -> umbra::Result<()> {
 
 pub fn gradcheck(args: GradcheckArgs) -> umbra::Result<()> {
     use umbra::adjoint::{self, check};
-    let scene = load_scene(Some(&args.scene), &args.define)?;
-    let mut opts = RenderOptions::from_scene(&scene);
-    opts.model = Model::parse(&args.model).ok_or_else(|| {
-        umbra::Error::Invalid(format!(
-            "--model: '{}' is not one of tri3, mc3, path",
-            args.model
-        ))
-    })?;
-    if let Some(s) = args.spp {
-        opts.spp = s.max(1);
-    }
-    opts.seed = args.seed.unwrap_or(opts.seed);
+    let mut scene = load_scene(Some(&args.scene), &args.define)?;
+    let mut opts = args.flags.overrides().apply(&mut scene)?;
+    resolve_auto(&scene, &mut opts)?;
     if args.h.iter().any(|h| !(h.is_finite() && *h > 0.0)) {
         return Err(umbra::Error::Invalid("--h: steps must be > 0".into()));
     }
@@ -292,5 +258,19 @@ pub fn bench_grad(args: &BenchArgs) -> umbra::Result<()> {
         ratios.push(format!("{model} {:.3}", hi / lo));
     }
     println!("\nLargest / smallest: {}", ratios.join(", "));
+    Ok(())
+}
+
+/// Gradients need a concrete model: `auto` runs its pilot and takes what it picks, as
+/// `umbra render` and Python's `grad` do.
+fn resolve_auto(scene: &umbra::scene::Scene, opts: &mut RenderOptions) -> umbra::Result<()> {
+    if opts.model == Model::Auto {
+        let geom = umbra::geometry::SceneGeometry::build(scene);
+        let r = umbra::transport::Renderer::new(scene, &geom, opts)?;
+        if let Some(c) = &r.auto_choice {
+            eprintln!("auto: chose {}", c.reason);
+        }
+        opts.model = r.model;
+    }
     Ok(())
 }

@@ -1,0 +1,197 @@
+//! The one gate between a scene with its options and the renderers.
+//!
+//! Every entry point (`umbra render`, `grad`, `gradcheck`, `fit`, Python's `render`,
+//! `grad`, `fit` and `umbra.torch`) reaches the estimators through
+//! [`super::Renderer::new`] or [`crate::adjoint::gradient`], and both call [`check`]
+//! first: a combination refused by one entry point is refused by all, with the same
+//! message. Option overrides from the command line or from Python keyword arguments go
+//! through [`Overrides::apply`], which checks each value and names the option.
+//!
+//! What is refused, and why:
+//!
+//! | combination | pass | reason |
+//! | --- | --- | --- |
+//! | a retroreflective object, capture not confocal | both | retroreflection is modelled for a co-located laser and sensor only |
+//! | a retroreflective object, model not `tri3` | both | only `tri3` models it |
+//! | `tri3` with `laser.spot_radius > 0` | both | `tri3` integrates from a point spot |
+//! | `path` with BSDF and hidden-geometry sampling both off | both | no path can leave the wall |
+//! | `path` with laser sampling off and a point spot | both | no path can hit a point |
+//! | `path` with `laser.spot_radius > 0` | gradient | replay differentiates a point spot only |
+//! | `auto` | gradient | resolve it first ([`super::Renderer::new`] does) |
+//! | `spp = 0`, `subdivision` or `max_error` not > 0, `max_depth` < 3 | both | |
+
+use super::RenderOptions;
+use crate::error::{Error, Result};
+use crate::scene::{CaptureType, Model, Reflectance, Scene, Visibility};
+
+/// Which pass the scene is checked for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Pass {
+    /// The forward render.
+    Render,
+    /// Gradients (path replay or `tri3`'s exact adjoint).
+    Gradient,
+}
+
+/// Checks that `opts` can run `scene` in `pass`: the one place such combinations are
+/// refused (see the module docs for the table).
+pub fn check(scene: &Scene, opts: &RenderOptions, pass: Pass) -> Result<()> {
+    check_values(scene, opts)?;
+    check_reflectance(scene, opts.model)?;
+    let t = &scene.render.techniques;
+    let point_spot = scene.laser.spot_radius <= 0.0;
+    let problem = match (opts.model, pass) {
+        (Model::Tri3, _) if !point_spot => {
+            "tri3 model: the laser spot must be a point (laser.spot_radius = 0); use mc3 or path"
+        }
+        (Model::Path, _) if !t.bsdf_sampling && !t.hidden_geometry_sampling => {
+            "path model: bsdf_sampling and hidden_geometry_sampling are both off, so no path can leave the wall"
+        }
+        (Model::Path, _) if !t.laser_sampling && point_spot => {
+            "path model: with laser sampling off, paths must hit the lit spot, which needs laser.spot_radius > 0"
+        }
+        (Model::Path, Pass::Gradient) if !point_spot => {
+            "gradients of the path model need a point laser spot (laser.spot_radius = 0); mc3 differentiates a finite spot"
+        }
+        (Model::Auto, Pass::Gradient) => {
+            "gradients: model auto must be resolved to tri3, mc3 or path first"
+        }
+        _ => return Ok(()),
+    };
+    Err(Error::Invalid(problem.into()))
+}
+
+/// The option values every model relies on.
+fn check_values(scene: &Scene, opts: &RenderOptions) -> Result<()> {
+    let bad = |msg: String| Err(Error::Invalid(msg));
+    if opts.spp == 0 {
+        return bad("spp: must be at least 1".into());
+    }
+    if !(opts.subdivision.is_finite() && opts.subdivision > 0.0) {
+        return bad(format!(
+            "subdivision: must be > 0, got {}",
+            opts.subdivision
+        ));
+    }
+    if !(opts.max_error.is_finite() && opts.max_error > 0.0) {
+        return bad(format!("max_error: must be > 0, got {}", opts.max_error));
+    }
+    if scene.render.max_bounces < 3 {
+        return bad(format!(
+            "max_depth: NLOS paths need at least 3 bounces, got {}",
+            scene.render.max_bounces
+        ));
+    }
+    Ok(())
+}
+
+/// Retroreflective objects exist only in the confocal `tri3` model.
+fn check_reflectance(scene: &Scene, model: Model) -> Result<()> {
+    let Some((i, o)) = scene
+        .objects
+        .iter()
+        .enumerate()
+        .find(|(_, o)| o.reflectance == Reflectance::Retroreflective)
+    else {
+        return Ok(());
+    };
+    let problem = if scene.capture != CaptureType::Confocal {
+        format!(
+            "needs confocal capture (the capture is {})",
+            scene.capture.name()
+        )
+    } else if model != Model::Tri3 {
+        format!("is modelled by tri3 only (the model is {})", model.name())
+    } else {
+        return Ok(());
+    };
+    Err(Error::Invalid(format!(
+        "objects[{i}] ({}): retroreflective reflectance {problem}",
+        o.name
+    )))
+}
+
+/// Render options set from the command line or Python keyword arguments; `None` keeps
+/// the scene's value. Names are the CLI's flags without dashes and the Python keywords.
+#[derive(Clone, Debug, Default)]
+pub struct Overrides {
+    /// `tri3`, `mc3`, `path` or `auto`.
+    pub model: Option<String>,
+    pub spp: Option<i64>,
+    pub seed: Option<u64>,
+    /// Bounces counting the laser spot and the sensor point; -1 = unbounded.
+    pub max_depth: Option<i64>,
+    pub laser_sampling: Option<bool>,
+    pub hidden_geometry_sampling: Option<bool>,
+    pub bsdf_sampling: Option<bool>,
+    /// `none`, `centroid` or `subtriangle`.
+    pub visibility: Option<String>,
+    pub subdivision: Option<f32>,
+    pub max_error: Option<f32>,
+    /// Test the laser -> `x_l` and `x_s` -> detector lines for occlusion.
+    pub visible_legs: Option<bool>,
+}
+
+impl Overrides {
+    /// Writes the overrides into `scene.render` (each value checked, the message naming
+    /// the option) and returns the render options that follow.
+    pub fn apply(&self, scene: &mut Scene) -> Result<RenderOptions> {
+        let bad = |msg: String| Err(Error::Invalid(msg));
+        let r = &mut scene.render;
+        if let Some(m) = &self.model {
+            r.model = match Model::parse(m) {
+                Some(m) => m,
+                None => return bad(format!("model: '{m}' is not one of tri3, mc3, path, auto")),
+            };
+        }
+        if let Some(s) = self.spp {
+            r.spp = match u32::try_from(s) {
+                Ok(s) if s >= 1 => s,
+                _ => {
+                    return bad(format!(
+                        "spp: must be an integer in [1, {}], got {s}",
+                        u32::MAX
+                    ))
+                }
+            };
+        }
+        r.seed = self.seed.unwrap_or(r.seed);
+        if let Some(d) = self.max_depth {
+            r.max_bounces = match d {
+                -1 => u32::MAX,
+                d if (3..=u32::MAX as i64).contains(&d) => d as u32,
+                d => return bad(format!("max_depth: must be -1 or >= 3 bounces, got {d}")),
+            };
+        }
+        let t = &mut r.techniques;
+        t.laser_sampling = self.laser_sampling.unwrap_or(t.laser_sampling);
+        t.hidden_geometry_sampling = self
+            .hidden_geometry_sampling
+            .unwrap_or(t.hidden_geometry_sampling);
+        t.bsdf_sampling = self.bsdf_sampling.unwrap_or(t.bsdf_sampling);
+        if let Some(v) = &self.visibility {
+            r.visibility = match Visibility::parse(v) {
+                Some(v) => v,
+                None => {
+                    return bad(format!(
+                        "visibility: '{v}' is not one of none, centroid, subtriangle"
+                    ))
+                }
+            };
+        }
+        if let Some(s) = self.subdivision {
+            if !(s.is_finite() && s > 0.0) {
+                return bad(format!("subdivision: must be > 0, got {s}"));
+            }
+            r.subdivision = s;
+        }
+        if let Some(e) = self.max_error {
+            if !(e.is_finite() && e > 0.0) {
+                return bad(format!("max_error: must be > 0, got {e}"));
+            }
+            r.max_error = e;
+        }
+        r.visible_legs = self.visible_legs.unwrap_or(r.visible_legs);
+        Ok(RenderOptions::from_scene(scene))
+    }
+}

@@ -20,8 +20,8 @@
 //!   against `tri3`'s exact gradient of the same binned model; the warning.
 //! - (`tests/stability_sampling.rs`: hidden-geometry sampling's heavy tail on a concave
 //!   corner, centroid visibility.)
-//! - a hidden object across the laser's beam: Umbra does not trace the visible legs, so
-//!   nothing changes (mitransient traces the beam and renders those points black).
+//! - a hidden object across the laser's beam: the visible legs are tested, so every
+//!   blocked point is dark as in mitransient; with `visible_legs = false` nothing changes.
 
 mod common;
 use common::*;
@@ -494,12 +494,12 @@ fn box_bins_lose_most_of_an_mc3_vertex_gradient() {
 }
 
 #[test]
-fn the_visible_legs_are_not_traced_a_blocked_laser_changes_nothing() {
-    // Umbra models the hidden part of the path only (the laser-to-wall and wall-to-
-    // detector legs are constants, DESIGN §2): a 6 cm plate 3 cm in front of the laser,
-    // across its beam to every scan point and black from the wall's side, changes
-    // nothing, where mitransient (which traces the beam) would render black. Documented;
-    // the accuracy scenes keep their laser clear of the hidden objects for that reason.
+fn a_blocked_laser_darkens_every_point_unless_the_legs_are_assumed_clear() {
+    // A 6 cm plate 3 cm in front of the laser, across its beam to every scan point and
+    // black from the wall's side: Umbra tests the visible legs (as mitransient traces the
+    // beam), so every measurement is dark. With `visible_legs = false` (the user vouches
+    // the legs are clear) the plate changes nothing: the hidden part of the path never
+    // meets it.
     let hidden = square_obj([0.0, 0.0, 0.8], 0.2);
     let plate =
         "v -0.03 -0.52 0.97\nv 0.03 -0.52 0.97\nv 0.03 -0.46 0.97\nv -0.03 -0.46 0.97\nf 1 2 3 4\n";
@@ -519,12 +519,24 @@ fn the_visible_legs_are_not_traced_a_blocked_laser_changes_nothing() {
     let (ta, _) = tri3_at(&a, 0.15);
     let (tb, _) = tri3_at(&b, 0.15);
     assert!(ta.iter().any(|&v| v > 0.0));
-    let e = rel_l2(&tb, &ta);
-    assert!(e < 1e-6, "tri3 with the plate differs by {e:e}");
+    assert!(
+        tb.iter().all(|&v| v == 0.0),
+        "tri3 renders light through the plate"
+    );
+    let (eb, _) = total_energy(&b, Model::Mc3, 256, 2);
+    assert_eq!(eb, 0.0, "mc3 renders light through the plate");
+    let mut clear = b.clone();
+    clear.render.visible_legs = false;
+    let (tc, _) = tri3_at(&clear, 0.15);
+    let e = rel_l2(&tc, &ta);
+    assert!(
+        e < 1e-6,
+        "tri3 with the plate and the legs assumed clear differs by {e:e}"
+    );
     // mc3: the plate only takes a share of the area samples (its contributions are 0).
     let (ea, sa) = total_energy(&a, Model::Mc3, 1024, 4);
-    let (eb, sb) = total_energy(&b, Model::Mc3, 1024, 4);
-    let z = (ea - eb).abs() / (sa * sa + sb * sb).sqrt();
-    println!("mc3 totals {ea:.6e} ± {sa:.1e} without, {eb:.6e} ± {sb:.1e} with the plate");
+    let (ec, sc) = total_energy(&clear, Model::Mc3, 1024, 4);
+    let z = (ea - ec).abs() / (sa * sa + sc * sc).sqrt();
+    println!("mc3 totals {ea:.6e} ± {sa:.1e} without, {ec:.6e} ± {sc:.1e} with the plate");
     assert!(z < 4.0, "mc3 totals differ by {z:.1} standard errors");
 }

@@ -3,6 +3,7 @@
 
 pub mod accel;
 pub mod mesh;
+pub mod overlap;
 pub mod sampling;
 pub mod shapes;
 

@@ -347,13 +347,51 @@ impl Scene {
                 path,
                 "-D name=value defines apply to Mitsuba XML scenes only",
             )),
-            "toml" => toml_format::load(path),
-            "xml" => mitsuba_xml::load_with_defines(path, defines),
+            "toml" => toml_format::load(path).map(Scene::with_overlap_warnings),
+            "xml" => {
+                mitsuba_xml::load_with_defines(path, defines).map(Scene::with_overlap_warnings)
+            }
             _ => Err(Error::scene(
                 path,
                 "unknown scene format: the extension must be .toml (Umbra) or .xml (Mitsuba)",
             )),
         }
+    }
+
+    /// The scene with a warning for every hidden object whose faces coincide with other
+    /// faces (a duplicated layer renders up to twice as bright; [`overlap`]). The file
+    /// loaders and Python's loaders call it.
+    ///
+    /// [`overlap`]: crate::geometry::overlap
+    pub fn with_overlap_warnings(mut self) -> Scene {
+        let meshes: Vec<_> = self
+            .objects
+            .iter()
+            .map(|o| (&o.mesh.positions[..], &o.mesh.triangles[..]))
+            .collect();
+        let min_stack = 0.5 * self.film.bin_width_opl;
+        for c in crate::geometry::overlap::coincident_faces(&meshes, min_stack) {
+            let by: Vec<String> = c
+                .covered_by
+                .iter()
+                .map(|&k| match k == c.object {
+                    true => "its own faces".to_string(),
+                    false => format!("objects[{k}] ({})'s", self.objects[k].name),
+                })
+                .collect();
+            self.warnings.push(format!(
+                "objects[{}] ({}): {:.0} % of its area lies on top of other faces facing the same way, \
+                 within {:.1} mm ({}): a duplicated layer? Without visibility both copies \
+                 reflect, so that surface renders up to twice as bright; remove the duplicate \
+                 faces",
+                c.object,
+                self.objects[c.object].name,
+                100.0 * c.share,
+                1e3 * c.stack_distance,
+                by.join(" and ")
+            ));
+        }
+        self
     }
 
     /// Number of (laser point, sensor point) pairs the capture measures.

@@ -147,7 +147,7 @@ fn cli_reports_errors_without_panicking() {
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("--spp"));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("spp: must be"));
 }
 
 proptest! {

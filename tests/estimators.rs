@@ -21,7 +21,9 @@ capture_type = "{capture}"
 size = [2.0, 2.0]
 albedo = 0.8
 [laser]
-origin = [0.2, -0.5, 1.0]
+# Below the tilted panel (z >= 0.3), so neither the beam nor the detector's view crosses
+# a hidden object: the visible legs are tested.
+origin = [0.2, -0.8, 0.2]
 target = [0.2, -0.1, 0.0]
 power = 1.0
 spot_radius = 0.0

@@ -121,7 +121,7 @@ fn cli_auto_says_what_it_chose_and_tri3_runs() {
         .output()
         .unwrap();
     assert_eq!(bad.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&bad.stderr).contains("--visibility"));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("visibility: 'sometimes'"));
 }
 
 #[test]

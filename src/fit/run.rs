@@ -89,6 +89,10 @@ pub struct FitReport {
     /// The fitted time offset (OPL, m; 0 unless searched).
     pub time_offset_opl: f64,
     pub rejected_steps: u64,
+    /// The final mesh's fitted transient at full resolution, `s K H + b` (scale,
+    /// detector response and background applied; bins left out of the fit are zero), in
+    /// the measurement's layout.
+    pub render: Vec<f32>,
     pub files: Vec<PathBuf>,
 }
 
@@ -294,7 +298,21 @@ pub fn fit(
         Ok(()) => files.push(picture),
         Err(e) => eprintln!("umbra fit: warning: {} not written: {e}", picture.display()),
     }
+    let bins = base.film.temporal_bins as usize;
+    let render = render
+        .iter()
+        .enumerate()
+        .map(|(i, &h)| {
+            let t = i % bins.max(1);
+            if t < first {
+                0.0
+            } else {
+                (intensity.scale * h as f64 + intensity.background_at(t)) as f32
+            }
+        })
+        .collect();
     Ok(FitReport {
+        render,
         mesh: surface,
         full_mesh: outcome.mesh,
         history: outcome.history,

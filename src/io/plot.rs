@@ -61,7 +61,8 @@ pub struct Series<'a> {
 }
 
 /// A line chart with a logarithmic y axis (non-positive values are dropped), e.g. a
-/// loss curve; `marks` are x positions drawn as vertical lines (stage boundaries).
+/// loss curve; `marks` are x positions drawn as vertical lines (stage boundaries). The
+/// first series is a wide grey line, the others dashed and coloured over it.
 pub fn log_chart(
     path: &Path,
     title: &str,
@@ -104,21 +105,35 @@ pub fn log_chart(
             .draw_series(LineSeries::new([(m, y0), (m, y1)], BLACK.mix(0.25)))
             .map_err(|e| err(path, e))?;
     }
+    // The first series is drawn wide and pale, the others dashed on top of it in strong
+    // colours: where they coincide (a fit without regularisation) both stay visible.
+    const COLOURS: [RGBColor; 4] = [
+        RGBColor(150, 150, 150),
+        RGBColor(200, 30, 30),
+        RGBColor(30, 90, 200),
+        RGBColor(20, 150, 60),
+    ];
     for (k, s) in series.iter().enumerate() {
-        let colour = Palette99::pick(k).to_rgba();
+        let colour = COLOURS[k % COLOURS.len()];
+        let width = if k == 0 { 6 } else { 2 };
         let pts: Vec<(f64, f64)> = s
             .points
             .iter()
             .cloned()
             .filter(|p| p.1 > 0.0 && p.1.is_finite())
             .collect();
-        chart
-            .draw_series(LineSeries::new(pts, colour.stroke_width(2)))
+        let style = colour.stroke_width(width);
+        let drawn = if k == 0 {
+            chart.draw_series(LineSeries::new(pts, style))
+        } else {
+            chart.draw_series(DashedLineSeries::new(pts, 10, 6, style))
+        };
+        drawn
             .map_err(|e| err(path, e))?
             .label(s.label)
-            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2)));
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], style));
     }
-    legend(&mut chart, path, SeriesLabelPosition::MiddleRight, 14)?;
+    legend(&mut chart, path, SeriesLabelPosition::UpperRight, 14)?;
     root.present().map_err(|e| err(path, e))?;
     Ok(())
 }
@@ -345,6 +360,110 @@ pub fn loglog_panel_chart(
         if !shared {
             legend(&mut chart, path, SeriesLabelPosition::LowerLeft, 11)?;
         }
+    }
+    root.present().map_err(|e| err(path, e))?;
+    Ok(())
+}
+
+/// One labelled image of [`labelled_maps`]: `values` row-major, top row first, NaN for
+/// "nothing here" (drawn black); the colour map spans `range` (`lo` dark, `hi` bright),
+/// explained under the image by a colour bar from `lo` to `hi` with `unit`.
+pub struct MapPanel<'a> {
+    /// What the panel shows (lines separated by `\n`).
+    pub title: &'a str,
+    pub width: usize,
+    pub height: usize,
+    pub values: &'a [f32],
+    pub range: (f32, f32),
+    /// The colour bar's caption, e.g. "depth from the wall (m)".
+    pub unit: &'a str,
+}
+
+/// Images side by side, each with its title above and a labelled colour bar below;
+/// `title` heads the picture and `footer` (e.g. the orientation) ends it.
+pub fn labelled_maps(path: &Path, title: &str, panels: &[MapPanel], footer: &str) -> Result<()> {
+    register_font();
+    const SIDE: usize = 256;
+    const GAP: i32 = 24;
+    const TOP: i32 = 84;
+    for p in panels {
+        if p.values.len() != p.width * p.height || p.width == 0 || p.height == 0 {
+            return Err(err(
+                path,
+                format!(
+                    "a panel of {} values is not {} x {}",
+                    p.values.len(),
+                    p.width,
+                    p.height
+                ),
+            ));
+        }
+    }
+    let zoom = |p: &MapPanel| (SIDE / p.width.max(p.height)).max(1);
+    let image_h = panels.iter().map(|p| p.height * zoom(p)).max().unwrap_or(1) as i32;
+    let total_w: i32 = panels
+        .iter()
+        .map(|p| (p.width * zoom(p)).max(SIDE) as i32 + GAP)
+        .sum::<i32>()
+        + GAP;
+    let (w, h) = (total_w.max(400) as u32, (TOP + image_h + 110) as u32);
+    let root = BitMapBackend::new(path, (w, h)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(path, e))?;
+    let text = |t: &str, x: i32, y: i32, size: u32| {
+        root.draw(&Text::new(t.to_string(), (x, y), (FAMILY, size)))
+            .map_err(|e| err(path, e))
+    };
+    text(title, GAP, 8, 16)?;
+    let mut x = GAP;
+    for p in panels {
+        let k = zoom(p);
+        for (i, line) in p.title.lines().enumerate() {
+            text(line, x, 36 + 16 * i as i32, 13)?;
+        }
+        let (lo, hi) = p.range;
+        let span = if hi > lo { hi - lo } else { 1.0 };
+        for r in 0..p.height {
+            for c in 0..p.width {
+                let v = p.values[r * p.width + c];
+                let [cr, cg, cb] = if v.is_finite() {
+                    inferno(((v - lo) / span).clamp(0.0, 1.0))
+                } else {
+                    [0, 0, 0]
+                };
+                let (px, py) = (x + (c * k) as i32, TOP + (r * k) as i32);
+                root.draw(&Rectangle::new(
+                    [(px, py), (px + k as i32, py + k as i32)],
+                    RGBColor(cr, cg, cb).filled(),
+                ))
+                .map_err(|e| err(path, e))?;
+            }
+        }
+        // The colour bar: lo at the left, hi at the right.
+        let bar_w = (p.width * k) as i32;
+        let y = TOP + image_h + 10;
+        for i in 0..bar_w {
+            let [cr, cg, cb] = inferno(i as f32 / (bar_w - 1).max(1) as f32);
+            root.draw(&Rectangle::new(
+                [(x + i, y), (x + i + 1, y + 12)],
+                RGBColor(cr, cg, cb).filled(),
+            ))
+            .map_err(|e| err(path, e))?;
+        }
+        let fmt = |v: f32| {
+            if v.abs() >= 100.0 || v == 0.0 {
+                format!("{v:.0}")
+            } else {
+                format!("{v:.3}")
+            }
+        };
+        text(&fmt(lo), x, y + 16, 12)?;
+        let hi_label = fmt(hi);
+        text(&hi_label, x + bar_w - 7 * hi_label.len() as i32, y + 16, 12)?;
+        text(p.unit, x, y + 32, 12)?;
+        x += (p.width * k).max(SIDE) as i32 + GAP;
+    }
+    for (i, line) in footer.lines().enumerate() {
+        text(line, GAP, TOP + image_h + 62 + 16 * i as i32, 12)?;
     }
     root.present().map_err(|e| err(path, e))?;
     Ok(())

@@ -93,7 +93,7 @@ pub fn array_f32<'py>(
     if let Ok(a) = obj.extract::<PyReadonlyArrayDyn<'py, f32>>() {
         return Ok(a);
     }
-    Ok(as_numpy(obj, "float32", name)?.extract()?)
+    as_numpy(obj, "float32", name)?.extract()
 }
 
 /// The values of a float32 array in C order: in place when it is C-contiguous.

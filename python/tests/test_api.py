@@ -264,6 +264,8 @@ def test_fit_with_truth_reports_chamfer_and_errors_name_arguments(tmp_path: Path
         umbra.fit(s, umbra.render(s), jitter=0.01, irf="direct", iters=1)
     with pytest.raises(umbra.UmbraError, match="measured has shape"):
         umbra.fit(s, np.zeros((3, 3)), iters=1)
+    with pytest.raises(umbra.UmbraError, match="bin: 0,1 is not TIME,SCAN"):
+        umbra.fit(s, umbra.render(s), bin=(0, 1), iters=1)
     with pytest.raises(umbra.UmbraError, match="init: 'cube'"):
         umbra.fit(s, umbra.render(s), init="cube", iters=1)
 

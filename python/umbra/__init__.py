@@ -21,6 +21,7 @@ import tempfile
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
+import numpy.typing as npt
 
 from ._umbra import Scene, UmbraError, capture, default_scene, mc3_samples, tri3_subtriangles
 from ._umbra import __version__, option_names
@@ -70,9 +71,9 @@ def render(scene: Scene, spp: Optional[int] = None, model: Optional[str] = None,
                    subdivision=subdivision, max_error=max_error)
 
 
-def grad(scene: Scene, adjoint: Optional[np.ndarray] = None, spp: Optional[int] = None,
+def grad(scene: Scene, adjoint: Optional[npt.ArrayLike] = None, spp: Optional[int] = None,
          model: Optional[str] = None, seed: Optional[int] = None,
-         threads: Optional[int] = None, *, target: Optional[np.ndarray] = None,
+         threads: Optional[int] = None, *, target: Optional[npt.ArrayLike] = None,
          loss: str = "l2", max_depth: Optional[int] = None,
          laser_sampling: Optional[bool] = None, hidden_geometry_sampling: Optional[bool] = None,
          bsdf_sampling: Optional[bool] = None, visibility: Optional[str] = None,
@@ -123,7 +124,7 @@ def _schedule_toml(stages: Sequence[Mapping[str, Any]]) -> str:
     return "\n".join(out) + "\n"
 
 
-def fit(scene: Scene, measured: Union[None, PathLike, np.ndarray] = None, *,
+def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
         output: Optional[PathLike] = None, init: str = "plane",
         schedule: Union[None, PathLike, Sequence[Mapping[str, Any]]] = None,
         iters: Optional[int] = None, resume: bool = False, model: str = "tri3", spp: int = 16,
@@ -166,7 +167,7 @@ def fit(scene: Scene, measured: Union[None, PathLike, np.ndarray] = None, *,
                 toml_text = f.read()
         else:
             toml_text = _schedule_toml(schedule)
-    kw = dict(init=init, schedule=toml_text, iters=iters, resume=resume, model=model, spp=spp,
+    kw: Dict[str, Any] = dict(init=init, schedule=toml_text, iters=iters, resume=resume, model=model, spp=spp,
               known_scale=known_scale, background=background, jitter=jitter, irf=irf,
               time_offset=time_offset, reflectance=reflectance, ignore_before=ignore_before,
               truth=truth, bin=bin, target_spp=target_spp, threads=threads, progress=progress)
@@ -216,7 +217,7 @@ def _element(name: "str | None", v: Any, indent: str) -> str:
             value = v.get("value", 0.0)
             text = ", ".join(str(float(x)) for x in np.atleast_1d(value))
             return f'{indent}<{kind}{attr} value="{text}"/>\n'
-        tag = _CATEGORY.get(kind)
+        tag = _CATEGORY.get(str(kind))
         if tag is None:
             raise UmbraError(f"dict scene: unknown plugin type {kind!r} (under {name!r})")
         ident = f' id="{name}"' if name is not None and tag in ("shape", "emitter") else ""

@@ -326,6 +326,14 @@ pub fn run(
     let is_lct = file.is_some_and(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("mat")));
     let lct_default = is_lct.then_some(600.0 * crate::io::lct::LCT_BIN_OPL);
     let bin = req.bin.unwrap_or(if is_lct { (8, 2) } else { (1, 1) });
+    if bin.0 == 0 || bin.1 == 0 {
+        return Err(Error::Invalid(format!(
+            "{}: {},{} is not TIME,SCAN (two integers >= 1)",
+            n("bin"),
+            bin.0,
+            bin.1
+        )));
+    }
     let counts = !demo && measured.iter().all(|&v| v >= 0.0 && v.fract() == 0.0);
     let (scene, measured) = if bin == (1, 1) {
         (scene, measured)

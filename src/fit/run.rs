@@ -353,28 +353,31 @@ fn write_loss(out: &Path, history: &[LossRecord]) -> Result<Vec<PathBuf>> {
         .filter(|w| w[0].stage != w[1].stage)
         .map(|w| w[1].iteration as f64 - 0.5)
         .collect();
-    let series = [
+    let points = |f: &dyn Fn(&LossRecord) -> f64| -> Vec<(f64, f64)> {
+        history.iter().map(|r| (r.iteration as f64, f(r))).collect()
+    };
+    let mut series = vec![
+        Series {
+            label: "total = data + smoothness",
+            points: points(&|r| r.cost),
+        },
         Series {
             label: "data loss |sH - M|^2 / |M|^2 (at the stage's resolution)",
-            points: history
-                .iter()
-                .map(|r| (r.iteration as f64, r.data_loss))
-                .collect(),
-        },
-        Series {
-            label: "total (with smoothness)",
-            points: history
-                .iter()
-                .map(|r| (r.iteration as f64, r.cost))
-                .collect(),
+            points: points(&|r| r.data_loss),
         },
     ];
+    if history.iter().any(|r| r.smoothness > 0.0) {
+        series.push(Series {
+            label: "smoothness (Laplacian) term",
+            points: points(&|r| r.smoothness),
+        });
+    }
     if !history.is_empty() {
         log_chart(
             &png,
-            "umbra fit: loss per iteration (stages marked)",
+            "umbra fit: loss per iteration",
             "iteration",
-            "loss",
+            "loss (relative, dimensionless)",
             &series,
             &marks,
         )?;

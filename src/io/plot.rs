@@ -82,7 +82,12 @@ pub fn log_chart(
     }
     let (x0, x1, y0, y1) = bounds(&pts);
     let x1 = if x1 > x0 { x1 } else { x0 + 1.0 };
-    let (y0, y1) = (y0 / 1.5, if y1 > y0 { y1 * 1.5 } else { y0 * 2.0 });
+    // Whole decades, so the axis always has labelled ticks.
+    let (d0, mut d1) = ((y0 / 1.2).log10().floor(), (y1 * 1.2).log10().ceil());
+    if d1 <= d0 {
+        d1 = d0 + 1.0;
+    }
+    let (y0, y1) = (10f64.powf(d0), 10f64.powf(d1));
     let root = BitMapBackend::new(path, (900, 560)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(path, e))?;
     let mut chart = ChartBuilder::on(&root)
@@ -97,13 +102,21 @@ pub fn log_chart(
         .x_desc(x_label)
         .y_desc(y_label)
         .label_style((FAMILY, 14))
+        .light_line_style(WHITE)
+        .y_labels(12)
         .y_label_formatter(&|v| format!("{v:.1e}"))
         .draw()
         .map_err(|e| err(path, e))?;
-    for &m in marks {
-        chart
-            .draw_series(LineSeries::new([(m, y0), (m, y1)], BLACK.mix(0.25)))
+    let mark_style = RGBColor(60, 60, 60).stroke_width(1);
+    for (i, &m) in marks.iter().enumerate() {
+        let drawn = chart
+            .draw_series(DashedLineSeries::new([(m, y0), (m, y1)], 4, 4, mark_style))
             .map_err(|e| err(path, e))?;
+        if i == 0 {
+            drawn
+                .label("stage boundary")
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], mark_style));
+        }
     }
     // The first series is drawn wide and pale, the others dashed on top of it in strong
     // colours: where they coincide (a fit without regularisation) both stay visible.

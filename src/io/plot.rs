@@ -82,12 +82,11 @@ pub fn log_chart(
     }
     let (x0, x1, y0, y1) = bounds(&pts);
     let x1 = if x1 > x0 { x1 } else { x0 + 1.0 };
-    // Whole decades, so the axis always has labelled ticks.
-    let (d0, mut d1) = ((y0 / 1.2).log10().floor(), (y1 * 1.2).log10().ceil());
-    if d1 <= d0 {
-        d1 = d0 + 1.0;
-    }
-    let (y0, y1) = (10f64.powf(d0), 10f64.powf(d1));
+    // The y axis is linear in log10(y), labelled with y itself (ticks wherever the
+    // range falls, even within one decade).
+    let (l0, l1) = (y0.log10(), y1.log10());
+    let pad = (0.08 * (l1 - l0)).max(0.02);
+    let (y0, y1) = (l0 - pad, l1 + pad);
     let root = BitMapBackend::new(path, (900, 560)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(path, e))?;
     let mut chart = ChartBuilder::on(&root)
@@ -95,7 +94,7 @@ pub fn log_chart(
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(80)
-        .build_cartesian_2d(x0..x1, (y0..y1).log_scale())
+        .build_cartesian_2d(x0..x1, y0..y1)
         .map_err(|e| err(path, e))?;
     chart
         .configure_mesh()
@@ -103,8 +102,8 @@ pub fn log_chart(
         .y_desc(y_label)
         .label_style((FAMILY, 14))
         .light_line_style(WHITE)
-        .y_labels(12)
-        .y_label_formatter(&|v| format!("{v:.1e}"))
+        .y_labels(10)
+        .y_label_formatter(&|v| format!("{:.2e}", 10f64.powf(*v)))
         .draw()
         .map_err(|e| err(path, e))?;
     let mark_style = RGBColor(60, 60, 60).stroke_width(1);
@@ -132,8 +131,8 @@ pub fn log_chart(
         let pts: Vec<(f64, f64)> = s
             .points
             .iter()
-            .cloned()
             .filter(|p| p.1 > 0.0 && p.1.is_finite())
+            .map(|p| (p.0, p.1.log10()))
             .collect();
         let style = colour.stroke_width(width);
         let drawn = if k == 0 {
@@ -146,7 +145,7 @@ pub fn log_chart(
             .label(s.label)
             .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], style));
     }
-    legend(&mut chart, path, SeriesLabelPosition::UpperRight, 14)?;
+    legend(&mut chart, path, SeriesLabelPosition::LowerLeft, 14)?;
     root.present().map_err(|e| err(path, e))?;
     Ok(())
 }

@@ -1,25 +1,34 @@
 //! `umbra._umbra`: the Python bindings (PyO3 + rust-numpy). The pure-Python package
-//! `umbra` (python/umbra) wraps these; see its docstrings for the user-facing API.
+//! `umbra` (python/umbra) wraps these; `_umbra.pyi` has their signatures and types.
 //!
-//! - Arrays cross as numpy arrays in mitransient's layout; renders and gradients are
-//!   copied out once (no copy on the Rust side beyond the result itself).
+//! - Arrays cross as numpy arrays in mitransient's layout. A float32 C-contiguous input
+//!   (`adjoint`, `target`) is read in place; renders are moved into numpy without a copy.
+//! - Options (`model`, `spp`, ...) override the scene's render settings in one place,
+//!   [`options::resolve`].
 //! - Every Rust error becomes `umbra.UmbraError` with the Rust message (never a crash of
-//!   the interpreter); a Ctrl-C during a long render or gradient raises
+//!   the interpreter); a Ctrl-C during a long render, gradient or fit raises
 //!   `KeyboardInterrupt` after cancelling the work.
 //! - The GIL is released while rendering: the work runs on a scoped thread while the
 //!   calling thread sleeps without the GIL, waking every 20 ms to check for signals.
 
-use numpy::{
-    IntoPyArray, PyArray2, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods,
-};
+mod fit;
+mod options;
+mod scene;
+mod validation;
+
+use numpy::ndarray::ArrayD;
+use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::create_exception;
 use pyo3::exceptions::{PyException, PyKeyboardInterrupt};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
-use std::path::Path;
+use pyo3::types::{PyDict, PyList};
+use scene::PyScene;
+use std::borrow::Cow;
 use std::sync::atomic::Ordering;
-use umbra::scene::{Model, Scene};
-use umbra::transport::{Progress, RenderOptions};
+use std::sync::Arc;
+use umbra::adjoint::Loss;
+use umbra::scene::Model;
+use umbra::transport::{Progress, RenderOptions, Renderer};
 
 create_exception!(
     _umbra,
@@ -29,7 +38,7 @@ create_exception!(
 );
 
 /// A shape as Python prints a tuple: `(2, 3)`, `(5,)`.
-fn py_shape(shape: &[usize]) -> String {
+pub fn py_shape(shape: &[usize]) -> String {
     match shape {
         [one] => format!("({one},)"),
         _ => format!(
@@ -43,225 +52,83 @@ fn py_shape(shape: &[usize]) -> String {
     }
 }
 
-fn to_py(e: umbra::Error) -> PyErr {
+pub fn to_py(e: umbra::Error) -> PyErr {
     match e {
         umbra::Error::Cancelled => PyKeyboardInterrupt::new_err("cancelled"),
         e => UmbraError::new_err(e.to_string()),
     }
 }
 
-/// A loaded scene: capture setup, hidden meshes (vertices and albedos readable and
-/// settable from numpy), film and render settings.
-#[pyclass(name = "Scene", module = "umbra")]
-struct PyScene {
-    inner: Scene,
-}
-
-impl PyScene {
-    fn object(&self, object: usize) -> PyResult<&umbra::scene::HiddenObject> {
-        self.inner.objects.get(object).ok_or_else(|| {
-            UmbraError::new_err(format!(
-                "object {object} does not exist: the scene has {} hidden object(s)",
-                self.inner.objects.len()
-            ))
-        })
-    }
-}
-
-#[pymethods]
-impl PyScene {
-    /// Shape of a render: `(sy, sx, T)` or `(sy, sx, ly, lx, T)` (mitransient's layout).
-    #[getter]
-    fn shape(&self) -> Vec<usize> {
-        self.inner.output_shape()
-    }
-
-    /// Names of the hidden objects, in scene order.
-    #[getter]
-    fn objects(&self) -> Vec<String> {
-        self.inner.objects.iter().map(|o| o.name.clone()).collect()
-    }
-
-    /// Warnings raised while loading (unsupported-but-harmless settings).
-    #[getter]
-    fn warnings(&self) -> Vec<String> {
-        self.inner.warnings.clone()
-    }
-
-    /// Vertex positions of hidden object `object` (world space, rows in the OBJ's `v`
-    /// order), a new `(V, 3)` float32 array.
-    #[pyo3(signature = (object = 0))]
-    fn vertices<'py>(&self, py: Python<'py>, object: usize) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let o = self.object(object)?;
-        let flat: Vec<f32> = o.mesh.positions.iter().flat_map(|p| p.to_array()).collect();
-        flat.into_pyarray(py).reshape([o.mesh.positions.len(), 3])
-    }
-
-    /// Replaces the vertex positions of hidden object `object` with a `(V, 3)` array
-    /// (same V; any float dtype). Non-finite values are refused.
-    #[pyo3(signature = (vertices, object = 0))]
-    fn set_vertices(&mut self, vertices: &Bound<'_, PyAny>, object: usize) -> PyResult<()> {
-        let n = self.object(object)?.mesh.positions.len();
-        let vertices: PyReadonlyArrayDyn<'_, f64> = match vertices.extract() {
-            Ok(a) => a,
-            Err(_) => {
-                let np = vertices.py().import("numpy")?;
-                np.call_method1("asarray", (vertices, "float64"))?
-                    .extract()?
-            }
-        };
-        if vertices.shape() != [n, 3] {
+/// `obj` as a float array of `dtype` through `numpy.asarray` (a no-op for an array of
+/// that dtype), or an `UmbraError` naming the argument.
+fn as_numpy<'py>(obj: &Bound<'py, PyAny>, dtype: &str, name: &str) -> PyResult<Bound<'py, PyAny>> {
+    let np = obj.py().import("numpy")?;
+    let kind = obj.getattr("dtype").and_then(|d| d.getattr("kind"));
+    if let Ok(kind) = kind {
+        let kind: String = kind.extract()?;
+        if !matches!(kind.as_str(), "f" | "i" | "u") {
             return Err(UmbraError::new_err(format!(
-                "vertices of object {object}: shape {}, expected ({n}, 3)",
-                py_shape(vertices.shape())
+                "{name}: expected an array of real numbers, got dtype {}",
+                obj.getattr("dtype")?.str()?
             )));
         }
-        let v = vertices.as_array();
-        if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-            return Err(UmbraError::new_err(format!(
-                "vertices of object {object}: non-finite value at row {}",
-                i / 3
-            )));
-        }
-        for (p, row) in self.inner.objects[object]
-            .mesh
-            .positions
-            .iter_mut()
-            .zip(v.rows())
-        {
-            *p = glam::Vec3::new(row[0] as f32, row[1] as f32, row[2] as f32);
-        }
-        Ok(())
     }
+    np.call_method1("asarray", (obj, dtype))
+        .map_err(|e| UmbraError::new_err(format!("{name}: not an array of real numbers ({e})")))
+}
 
-    /// Triangles of hidden object `object`: a `(T, 3)` uint32 array of vertex rows.
-    #[pyo3(signature = (object = 0))]
-    fn triangles<'py>(
-        &self,
-        py: Python<'py>,
-        object: usize,
-    ) -> PyResult<Bound<'py, PyArray2<u32>>> {
-        let o = self.object(object)?;
-        let flat: Vec<u32> = o.mesh.triangles.iter().flatten().copied().collect();
-        flat.into_pyarray(py).reshape([o.mesh.triangles.len(), 3])
+/// A real array-like as an owned float64 array (small inputs: vertices, albedos).
+pub fn array_f64(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<ArrayD<f64>> {
+    let a = as_numpy(obj, "float64", name)?;
+    let a: PyReadonlyArrayDyn<'_, f64> = a.extract()?;
+    Ok(a.as_array().to_owned())
+}
+
+/// A real array-like as float32: a float32 array is borrowed as it is (no copy), any
+/// other is converted once.
+pub fn array_f32<'py>(
+    obj: &Bound<'py, PyAny>,
+    name: &str,
+) -> PyResult<PyReadonlyArrayDyn<'py, f32>> {
+    if let Ok(a) = obj.extract::<PyReadonlyArrayDyn<'py, f32>>() {
+        return Ok(a);
     }
+    as_numpy(obj, "float32", name)?.extract()
+}
 
-    /// Albedo of every hidden object (the object's albedo; meshes with vertex colours use
-    /// `vertex_albedo` instead).
-    #[getter]
-    fn albedo(&self) -> Vec<f32> {
-        self.inner.objects.iter().map(|o| o.albedo).collect()
-    }
-
-    /// Sets the albedo of hidden object `object` (in [0, 1]).
-    #[pyo3(signature = (value, object = 0))]
-    fn set_albedo(&mut self, value: f32, object: usize) -> PyResult<()> {
-        self.object(object)?;
-        if !(0.0..=1.0).contains(&value) {
-            return Err(UmbraError::new_err(format!(
-                "albedo {value} is outside [0, 1]"
-            )));
-        }
-        self.inner.objects[object].albedo = value;
-        Ok(())
-    }
-
-    /// Per-vertex albedo of hidden object `object` (vertex colours), or None.
-    #[pyo3(signature = (object = 0))]
-    fn vertex_albedo(&self, object: usize) -> PyResult<Option<Vec<f32>>> {
-        Ok(self.object(object)?.mesh.vertex_albedo.clone())
-    }
-
-    /// Sets per-vertex albedo of hidden object `object` (length V, values in [0, 1]).
-    #[pyo3(signature = (values, object = 0))]
-    fn set_vertex_albedo(&mut self, values: Vec<f32>, object: usize) -> PyResult<()> {
-        let n = self.object(object)?.mesh.positions.len();
-        if values.len() != n || values.iter().any(|a| !(0.0..=1.0).contains(a)) {
-            return Err(UmbraError::new_err(format!(
-                "vertex albedo of object {object}: expected {n} values in [0, 1]"
-            )));
-        }
-        self.inner.objects[object].mesh.vertex_albedo = Some(values);
-        Ok(())
-    }
-
-    /// A copy of the scene (to perturb without touching the original).
-    fn copy(&self) -> PyScene {
-        PyScene {
-            inner: self.inner.clone(),
-        }
-    }
-
-    fn __repr__(&self) -> String {
-        let s = &self.inner;
-        format!(
-            "umbra.Scene(shape={:?}, objects={:?}, model={}, spp={})",
-            s.output_shape(),
-            self.objects(),
-            s.render.model.name(),
-            s.render.spp
-        )
+/// The values of a float32 array in C order: in place when it is C-contiguous.
+fn c_order<'a>(a: &'a PyReadonlyArrayDyn<'_, f32>) -> Cow<'a, [f32]> {
+    match a.as_slice() {
+        Ok(s) => Cow::Borrowed(s),
+        Err(_) => Cow::Owned(a.as_array().iter().copied().collect()),
     }
 }
 
-/// Loads a scene file: Umbra TOML (`.toml`) or mitransient-style Mitsuba XML (`.xml`),
-/// with `defines` for the XML's `$name` parameters.
-#[pyfunction]
-#[pyo3(signature = (path, defines = None))]
-fn load_scene(path: &str, defines: Option<Vec<(String, String)>>) -> PyResult<PyScene> {
-    let inner =
-        Scene::load_with_defines(Path::new(path), &defines.unwrap_or_default()).map_err(to_py)?;
-    Ok(PyScene { inner })
-}
-
-/// Parses Mitsuba XML text (`base_dir` resolves relative file names; `origin` names the
-/// source in error messages).
-#[pyfunction]
-#[pyo3(signature = (text, base_dir = ".", origin = "<dict>"))]
-fn load_scene_xml(text: &str, base_dir: &str, origin: &str) -> PyResult<PyScene> {
-    let inner = umbra::scene::mitsuba_xml::parse(text, Path::new(origin), Path::new(base_dir))
-        .map_err(to_py)?;
-    Ok(PyScene { inner })
-}
-
-/// The built-in default scene (a letter T, confocal 32 x 32).
-#[pyfunction]
-fn default_scene() -> PyResult<PyScene> {
-    Ok(PyScene {
-        inner: umbra::scene::default::default_scene().map_err(to_py)?,
-    })
-}
-
-fn options(
-    scene: &Scene,
-    model: Option<&str>,
-    spp: Option<u32>,
-    seed: Option<u64>,
-) -> PyResult<RenderOptions> {
-    let mut opts = RenderOptions::from_scene(scene);
-    if let Some(m) = model {
-        opts.model = Model::parse(m).ok_or_else(|| {
-            UmbraError::new_err(format!("model '{m}' is not one of tri3, mc3, path, auto"))
-        })?;
+/// An array input of the render's shape, checked.
+fn like_render<'py>(
+    obj: &Bound<'py, PyAny>,
+    name: &str,
+    shape: &[usize],
+) -> PyResult<PyReadonlyArrayDyn<'py, f32>> {
+    let a = array_f32(obj, name)?;
+    if a.shape() != shape {
+        return Err(UmbraError::new_err(format!(
+            "{name} has shape {}, the render {}",
+            py_shape(a.shape()),
+            py_shape(shape)
+        )));
     }
-    if let Some(s) = spp {
-        if s == 0 {
-            return Err(UmbraError::new_err("spp must be at least 1"));
-        }
-        opts.spp = s;
-    }
-    opts.seed = seed.unwrap_or(opts.seed);
-    Ok(opts)
+    Ok(a)
 }
 
 /// Runs `work` on a scoped thread without the GIL, checking for Ctrl-C every 20 ms: a
 /// signal cancels the work (through `progress`) and is re-raised once it has stopped.
-fn run_interruptible<T: Send>(
+pub fn run_interruptible<T: Send>(
     py: Python<'_>,
     threads: Option<usize>,
-    work: impl FnOnce(&Progress) -> umbra::Result<T> + Send,
+    work: impl FnOnce(&Arc<Progress>) -> umbra::Result<T> + Send,
 ) -> PyResult<T> {
-    let progress = Progress::default();
+    let progress = Arc::new(Progress::default());
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads.unwrap_or(0))
         .build()
@@ -291,226 +158,121 @@ fn run_interruptible<T: Send>(
     }
 }
 
-/// Renders the scene's transient: a float32 array in mitransient's layout.
+/// Renders the scene's transient: a float32 array in mitransient's layout. Options
+/// (`options::NAMES`) override the scene's render settings.
 #[pyfunction]
-#[pyo3(signature = (scene, spp = None, model = None, seed = None, threads = None))]
+#[pyo3(signature = (scene, **options))]
 fn render<'py>(
     py: Python<'py>,
     scene: &PyScene,
-    spp: Option<u32>,
-    model: Option<&str>,
-    seed: Option<u64>,
-    threads: Option<usize>,
+    options: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
-    let s = &scene.inner;
-    let opts = options(s, model, spp, seed)?;
-    let t = run_interruptible(py, threads, |progress| {
-        let geom = umbra::geometry::SceneGeometry::build(s);
-        umbra::transport::render(s, &geom, &opts, Some(progress))
+    let r = options::resolve(&scene.inner, options)?;
+    let (s, opts) = (&*r.scene, r.opts);
+    let t = run_interruptible(py, r.threads, |progress| {
+        let geom = scene.geometry();
+        umbra::transport::render(s, &geom, &opts, Some(&**progress))
     })?;
     t.data.into_pyarray(py).reshape(t.shape)
 }
 
-/// `dLoss/dθ` for the adjoint histogram `adjoint` (`dLoss/dH`, the render's shape):
-/// a dict with `vertices` (`(V, 3)` float64, or a list of them for several objects),
-/// `albedo` (one per object), `vertex_albedo` (per object, None without vertex colours).
+/// `dLoss/dθ`, for the adjoint histogram `adjoint` (`dLoss/dH`) or for `loss` against
+/// `target` (one of the two): see `umbra.grad` for the dict it returns.
 #[pyfunction]
-#[pyo3(signature = (scene, adjoint, spp = None, model = None, seed = None, threads = None))]
+#[pyo3(signature = (scene, adjoint = None, target = None, loss = "l2", **options))]
 fn grad<'py>(
     py: Python<'py>,
     scene: &PyScene,
-    adjoint: PyReadonlyArrayDyn<'py, f32>,
-    spp: Option<u32>,
-    model: Option<&str>,
-    seed: Option<u64>,
-    threads: Option<usize>,
+    adjoint: Option<&Bound<'py, PyAny>>,
+    target: Option<&Bound<'py, PyAny>>,
+    loss: &str,
+    options: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let s = &scene.inner;
-    let opts = options(s, model, spp, seed)?;
-    if adjoint.shape() != s.output_shape().as_slice() {
-        return Err(UmbraError::new_err(format!(
-            "adjoint has shape {}, the render {}",
-            py_shape(adjoint.shape()),
-            py_shape(&s.output_shape())
-        )));
-    }
-    let adj: Vec<f32> = adjoint.as_array().iter().copied().collect();
-    let g = run_interruptible(py, threads, |progress| {
-        let geom = umbra::geometry::SceneGeometry::build(s);
-        let model = match opts.model {
-            Model::Auto => umbra::transport::Renderer::new(s, &geom, &opts)?.model,
-            m => m,
+    let r = options::resolve(&scene.inner, options)?;
+    let (s, opts) = (&*r.scene, r.opts);
+    let shape = s.output_shape();
+    let (input, with_target) =
+        match (adjoint, target) {
+            (Some(a), None) => (like_render(a, "adjoint", &shape)?, false),
+            (None, Some(t)) => (like_render(t, "target", &shape)?, true),
+            _ => return Err(UmbraError::new_err(
+                "grad: give either adjoint (dLoss/dH) or target (with loss), not both or neither",
+            )),
         };
-        let opts = RenderOptions { model, ..opts };
-        umbra::adjoint::gradient(s, &geom, &opts, &adj, Some(progress))
+    let loss: Loss = loss
+        .parse()
+        .map_err(|e| UmbraError::new_err(format!("loss: {e}")))?;
+    let values = c_order(&input);
+    let values: &[f32] = &values;
+    let (value, primal, g) = run_interruptible(py, r.threads, |progress| {
+        let geom = scene.geometry();
+        let mut opts = opts;
+        let mut primal = None;
+        if with_target || opts.model == Model::Auto {
+            let renderer = Renderer::new(s, &geom, &opts)?;
+            opts = RenderOptions {
+                model: renderer.model,
+                ..opts
+            };
+            if with_target {
+                primal = Some(renderer.render(Some(&**progress))?);
+            }
+        }
+        let (value, adj) = match &primal {
+            Some(h) => {
+                let (value, adj) = loss.evaluate(&h.data, values, h.bins())?;
+                (Some(value), Cow::Owned(adj))
+            }
+            None => (None, Cow::Borrowed(values)),
+        };
+        let g = umbra::adjoint::gradient(s, &geom, &opts, &adj, Some(&**progress))?;
+        Ok((value, primal, g))
     })?;
     let out = PyDict::new(py);
-    let mut vertices = Vec::new();
+    let vertices = PyList::empty(py);
     for v in &g.vertices {
         let flat: Vec<f64> = v.iter().flatten().copied().collect();
-        vertices.push(flat.into_pyarray(py).reshape([v.len(), 3])?);
+        vertices.append(flat.into_pyarray(py).reshape([v.len(), 3])?)?;
     }
-    if vertices.len() == 1 {
-        out.set_item("vertices", vertices.pop())?;
-    } else {
-        out.set_item("vertices", vertices)?;
+    out.set_item("vertices", vertices)?;
+    out.set_item("albedo", g.albedo.into_pyarray(py))?;
+    let va = PyList::empty(py);
+    for a in g.vertex_albedo {
+        match a {
+            Some(a) => va.append(a.into_pyarray(py))?,
+            None => va.append(py.None())?,
+        }
     }
-    out.set_item("albedo", g.albedo.clone().into_pyarray(py))?;
-    let va: Vec<Option<Bound<'py, numpy::PyArray1<f64>>>> = g
-        .vertex_albedo
-        .iter()
-        .map(|a| a.clone().map(|a| a.into_pyarray(py)))
-        .collect();
     out.set_item("vertex_albedo", va)?;
+    out.set_item("loss", value)?;
+    match primal {
+        Some(h) => out.set_item("render", h.data.into_pyarray(py).reshape(h.shape)?)?,
+        None => out.set_item("render", py.None())?,
+    }
     out.set_item("truncated_paths", g.truncated)?;
     Ok(out)
 }
 
-/// The capture as the estimators see it, for independent implementations (the Dr.Jit
-/// validation): per measurement the laser spot `x_l` and sensor point `x_s` (M, 3), the
-/// power delivered to the spot `power` (M,), the extra OPL of the laser and detector legs
-/// `legs` (M,); the wall normal `n_w`, the wall BRDF `f_wall` (ρ_w/π); per flat hidden
-/// triangle (objects in order, their triangles in order) the corners `triangles`
-/// (T, 3, 3), corner albedos `albedo` (T, 3) and `two_sided` (T,); the film's `start`,
-/// `width`, `bins`, `kernel` and `sigma` (OPL, m).
+/// `options::NAMES`: the keyword options of render and grad.
 #[pyfunction]
-fn capture<'py>(py: Python<'py>, scene: &PyScene) -> PyResult<Bound<'py, PyDict>> {
-    let s = &scene.inner;
-    let geom = umbra::geometry::SceneGeometry::build(s);
-    let film = umbra::film::Film::new(&s.film);
-    let m = s.num_measurements();
-    let (mut x_l, mut x_s, mut power, mut legs) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    let mut f_wall = 0.0;
-    for i in 0..m {
-        let ctx = umbra::transport::MeasurementCtx::new(s, &geom, &film, i);
-        x_l.extend(ctx.x_l.to_array());
-        x_s.extend(ctx.x_s.to_array());
-        power.push(ctx.power);
-        legs.push(ctx.opl_laser_leg(ctx.x_l) + ctx.opl_sensor_leg);
-        f_wall = ctx.f_wall;
-    }
-    let t = geom.hidden.len();
-    let corners: Vec<f32> = geom
-        .hidden
-        .iter()
-        .flat_map(|h| h.v.iter().flat_map(|v| v.to_array()))
-        .collect();
-    let albedo: Vec<f32> = geom.hidden.iter().flat_map(|h| h.albedo).collect();
-    let two_sided: Vec<bool> = geom.hidden.iter().map(|h| h.two_sided).collect();
-    let d = PyDict::new(py);
-    d.set_item("x_l", x_l.into_pyarray(py).reshape([m, 3])?)?;
-    d.set_item("x_s", x_s.into_pyarray(py).reshape([m, 3])?)?;
-    d.set_item("power", power.into_pyarray(py))?;
-    d.set_item("legs", legs.into_pyarray(py))?;
-    d.set_item("n_w", s.wall.normal().to_array().to_vec())?;
-    d.set_item("f_wall", f_wall)?;
-    d.set_item("triangles", corners.into_pyarray(py).reshape([t, 3, 3])?)?;
-    d.set_item("albedo", albedo.into_pyarray(py).reshape([t, 3])?)?;
-    d.set_item("two_sided", two_sided)?;
-    d.set_item("start", film.start)?;
-    d.set_item("width", film.width)?;
-    d.set_item("bins", film.bins)?;
-    let (kernel, sigma) = match s.film.kernel {
-        umbra::scene::KernelSpec::Box => ("box", 0.0),
-        umbra::scene::KernelSpec::Gaussian { sigma_opl } => ("gaussian", sigma_opl as f64),
-    };
-    d.set_item("kernel", kernel)?;
-    d.set_item("sigma", sigma)?;
-    Ok(d)
-}
-
-/// The random choices of `mc3` for `spp` samples of every measurement (seed `seed`):
-/// flat triangle `tri` (M, spp), barycentrics `bary` (M, spp, 2), its probability
-/// `prob` (M, spp), the laser-spot point `x_l` (M, spp, 3), and whether the hidden
-/// point sees both wall points `visible` (M, spp). `umbra.render(..., model="mc3")` is
-/// the mean over samples of the three-bounce integrand over `prob / A_tri`, for these.
-#[pyfunction]
-#[pyo3(signature = (scene, spp, seed = 0))]
-fn mc3_samples<'py>(
-    py: Python<'py>,
-    scene: &PyScene,
-    spp: u32,
-    seed: u64,
-) -> PyResult<Bound<'py, PyDict>> {
-    let s = &scene.inner;
-    let geom = umbra::geometry::SceneGeometry::build(s);
-    if geom.hidden.is_empty() {
-        return Err(UmbraError::new_err("the scene has no hidden triangles"));
-    }
-    let film = umbra::film::Film::new(&s.film);
-    let m = s.num_measurements();
-    let n = m * spp as usize;
-    let (mut tri, mut bary, mut prob, mut x_l, mut visible) = (
-        Vec::with_capacity(n),
-        Vec::with_capacity(2 * n),
-        Vec::with_capacity(n),
-        Vec::with_capacity(3 * n),
-        Vec::with_capacity(n),
-    );
-    for i in 0..m {
-        let ctx = umbra::transport::MeasurementCtx::new(s, &geom, &film, i);
-        for k in 0..spp {
-            let mut sampler = umbra::rng::Sampler::new(seed, i as u64, k);
-            let (ts, xl) = umbra::transport::mc3::draw(&ctx, &mut sampler);
-            let x = geom.hidden[ts.tri as usize].point(ts.bary);
-            tri.push(ts.tri);
-            bary.extend(ts.bary);
-            prob.push(ts.prob);
-            x_l.extend(xl.to_array());
-            visible.push(!geom.occluded(x, xl) && !geom.occluded(x, ctx.x_s));
-        }
-    }
-    let sp = spp as usize;
-    let d = PyDict::new(py);
-    d.set_item("tri", tri.into_pyarray(py).reshape([m, sp])?)?;
-    d.set_item("bary", bary.into_pyarray(py).reshape([m, sp, 2])?)?;
-    d.set_item("prob", prob.into_pyarray(py).reshape([m, sp])?)?;
-    d.set_item("x_l", x_l.into_pyarray(py).reshape([m, sp, 3])?)?;
-    let vis: Vec<u8> = visible.into_iter().map(u8::from).collect();
-    d.set_item("visible", vis.into_pyarray(py).reshape([m, sp])?)?;
-    Ok(d)
-}
-
-/// The sub-triangles `tri3` renders with (subdivision threshold `subdivision`, default
-/// the scene's): for each, its flat parent triangle `parent` (S,) and the barycentrics
-/// `(b1, b2)` of its three corners in the parent `corner_bary` (S, 3, 2).
-#[pyfunction]
-#[pyo3(signature = (scene, subdivision = None))]
-fn tri3_subtriangles<'py>(
-    py: Python<'py>,
-    scene: &PyScene,
-    subdivision: Option<f32>,
-) -> PyResult<Bound<'py, PyDict>> {
-    let s = &scene.inner;
-    let geom = umbra::geometry::SceneGeometry::build(s);
-    let mesh = umbra::transport::tri3::Tri3Mesh::build(
-        s,
-        &geom,
-        subdivision.unwrap_or(s.render.subdivision),
-    );
-    let n = mesh.len();
-    let bary: Vec<f32> = mesh
-        .corner_bary
-        .iter()
-        .flat_map(|c| c.iter().flatten().copied())
-        .collect();
-    let d = PyDict::new(py);
-    d.set_item("parent", mesh.parent.clone().into_pyarray(py))?;
-    d.set_item("corner_bary", bary.into_pyarray(py).reshape([n, 3, 2])?)?;
-    Ok(d)
+fn option_names() -> Vec<&'static str> {
+    options::NAMES.to_vec()
 }
 
 #[pymodule]
 fn _umbra(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("UmbraError", m.py().get_type::<UmbraError>())?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_class::<PyScene>()?;
-    m.add_function(wrap_pyfunction!(load_scene, m)?)?;
-    m.add_function(wrap_pyfunction!(load_scene_xml, m)?)?;
-    m.add_function(wrap_pyfunction!(default_scene, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::load_scene, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::load_scene_xml, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::default_scene, m)?)?;
     m.add_function(wrap_pyfunction!(render, m)?)?;
     m.add_function(wrap_pyfunction!(grad, m)?)?;
-    m.add_function(wrap_pyfunction!(capture, m)?)?;
-    m.add_function(wrap_pyfunction!(mc3_samples, m)?)?;
-    m.add_function(wrap_pyfunction!(tri3_subtriangles, m)?)?;
+    m.add_function(wrap_pyfunction!(option_names, m)?)?;
+    m.add_function(wrap_pyfunction!(fit::fit, m)?)?;
+    m.add_function(wrap_pyfunction!(validation::capture, m)?)?;
+    m.add_function(wrap_pyfunction!(validation::mc3_samples, m)?)?;
+    m.add_function(wrap_pyfunction!(validation::tri3_subtriangles, m)?)?;
     Ok(())
 }

@@ -48,9 +48,21 @@ def test_render_and_grad_equal_the_cli(tmp_path: Path, umbra_bin: str):
                    check=True, capture_output=True)
     g = umbra.grad(s, adj, model="mc3", spp=64, seed=5)
     cli = np.load(tmp_path / "g.npz")
-    assert g["vertices"].shape == cli["vertices"].shape == (s.vertices().shape[0], 3)
-    assert np.array_equal(g["vertices"], cli["vertices"])
+    assert g["vertices"][0].shape == cli["vertices"].shape == (s.vertices().shape[0], 3)
+    assert np.array_equal(g["vertices"][0], cli["vertices"])
     assert np.array_equal(g["albedo"], cli["albedo"])
+    # With a target: the CLI's --target and grad(target=...) agree, loss value included.
+    target = umbra.render(s, model="mc3", spp=64, seed=9)
+    np.save(tmp_path / "target.npy", target)
+    for loss in ("l2", "l2-normalized"):
+        subprocess.run([exe, "grad", str(T_XML), *defines, "--model", "mc3", "--spp", "64",
+                        "--seed", "5", "--target", str(tmp_path / "target.npy"), "--loss", loss,
+                        "-o", str(tmp_path / "gt.npz")], check=True, capture_output=True)
+        cli = np.load(tmp_path / "gt.npz")
+        g = umbra.grad(s, target=target, loss=loss, model="mc3", spp=64, seed=5)
+        assert g["loss"] == pytest.approx(float(cli["loss"]), rel=1e-12)
+        assert np.array_equal(g["vertices"][0], cli["vertices"])
+        assert np.array_equal(g["render"], h)
 
 
 def test_vertices_and_albedo_round_trip_and_bad_input():
@@ -76,6 +88,16 @@ def test_vertices_and_albedo_round_trip_and_bad_input():
         s.vertices(3)
     with pytest.raises(umbra.UmbraError, match="adjoint has shape"):
         umbra.grad(s, np.zeros((2, 2), np.float32), model="mc3")
+    with pytest.raises(umbra.UmbraError, match="target has shape"):
+        umbra.grad(s, target=np.zeros((2, 2)), model="mc3")
+    with pytest.raises(umbra.UmbraError, match="adjoint: expected an array of real numbers"):
+        umbra.grad(s, np.full(tuple(s.shape), "x"), model="mc3")
+    with pytest.raises(umbra.UmbraError, match="either adjoint"):
+        umbra.grad(s, model="mc3")
+    with pytest.raises(umbra.UmbraError, match="loss: unknown loss 'l1'"):
+        umbra.grad(s, target=np.zeros(tuple(s.shape)), loss="l1")
+    with pytest.raises(umbra.UmbraError, match="vertices of object 0: expected an array of real"):
+        s.copy().set_vertices(np.array([["a", "b", "c"]] * v.shape[0]))
 
 
 def test_errors_name_the_file():

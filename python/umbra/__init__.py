@@ -2,30 +2,40 @@
 
     import umbra
     scene = umbra.load_scene("scene.xml")              # TOML, Mitsuba XML, or a dict
-    H = umbra.render(scene, spp=256, model="mc3")       # numpy, mitransient's layout
-    g = umbra.grad(scene, dLdH, spp=256, model="mc3")  # {"vertices": (V, 3), "albedo": ...}
+    H = umbra.render(scene, spp=256, model="mc3")       # numpy float32, mitransient's layout
+    g = umbra.grad(scene, target=M, spp=256, model="mc3")   # or adjoint=dLoss/dH
+    g["loss"], g["vertices"][0], g["albedo"]           # one (V_k, 3) array per object
+    fit = umbra.fit(scene, M, init="plane")             # the fitting of `umbra fit`
 
 Models (the same names as the CLI and scene files): ``tri3`` (noise-free per-triangle
 three-bounce), ``mc3`` (Monte Carlo three-bounce), ``path`` (multi-bounce), ``auto``.
+Every option of ``umbra render`` is a keyword of :func:`render` and :func:`grad`; an
+option left at None takes the scene's value (``scene.options`` lists them).
 Errors are raised as :class:`UmbraError` with Umbra's message; Ctrl-C interrupts a long
-render or gradient. ``umbra.torch`` has a ``torch.autograd.Function`` on top.
+render, gradient or fit. ``umbra.torch`` has a ``torch.autograd.Function`` on top.
 """
 from __future__ import annotations
 
 import os
-from typing import Any, Mapping
+import tempfile
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
+import numpy.typing as npt
 
-from ._umbra import Scene, UmbraError, capture, default_scene, grad as _grad, mc3_samples
-from ._umbra import render as _render, tri3_subtriangles
+from ._umbra import Scene, UmbraError, capture, default_scene, mc3_samples, tri3_subtriangles
+from ._umbra import __version__, option_names
+from ._umbra import fit as _fit, grad as _grad, render as _render
 from ._umbra import load_scene as _load_path, load_scene_xml as _load_xml
 
-__all__ = ["Scene", "UmbraError", "load_scene", "default_scene", "render", "grad", "dict_to_xml",
-           "capture", "mc3_samples", "tri3_subtriangles"]
+__all__ = ["Scene", "UmbraError", "load_scene", "default_scene", "render", "grad", "fit",
+           "dict_to_xml", "option_names", "capture", "mc3_samples", "tri3_subtriangles",
+           "__version__"]
+
+PathLike = Union[str, "os.PathLike[str]"]
 
 
-def load_scene(source: "str | os.PathLike | Mapping[str, Any]", base_dir: "str | None" = None,
+def load_scene(source: Union[PathLike, Mapping[str, Any]], base_dir: Optional[str] = None,
                **defines: Any) -> Scene:
     """A scene from a TOML or Mitsuba XML file (``defines`` set the XML's ``$name``
     parameters, like Mitsuba's ``-D``), or from a dict in Mitsuba's ``load_dict``
@@ -36,23 +46,137 @@ def load_scene(source: "str | os.PathLike | Mapping[str, Any]", base_dir: "str |
     return _load_path(os.fspath(source), [(k, _xml_value(v)) for k, v in defines.items()])
 
 
-def render(scene: Scene, spp: "int | None" = None, model: "str | None" = None,
-           seed: "int | None" = None, threads: "int | None" = None) -> np.ndarray:
-    """The scene's transient, float32, in mitransient's layout ``(sy, sx, T)`` (or
-    ``(sy, sx, ly, lx, T)`` for exhaustive capture). Unset arguments come from the scene.
-    Same seed, same output, whatever the thread count."""
-    return _render(scene, spp=spp, model=model, seed=seed, threads=threads)
+def render(scene: Scene, spp: Optional[int] = None, model: Optional[str] = None,
+           seed: Optional[int] = None, threads: Optional[int] = None, *,
+           max_depth: Optional[int] = None, laser_sampling: Optional[bool] = None,
+           hidden_geometry_sampling: Optional[bool] = None,
+           bsdf_sampling: Optional[bool] = None, visibility: Optional[str] = None,
+           subdivision: Optional[float] = None, max_error: Optional[float] = None) -> np.ndarray:
+    """The scene's transient: a new float32 array in mitransient's layout ``(sy, sx, T)``
+    (``(sy, sx, ly, lx, T)`` for exhaustive capture). Same seed, same output, whatever
+    the thread count.
+
+    Options (None: the scene's value, see ``scene.options``), as ``umbra render``'s flags:
+    ``model`` tri3 | mc3 | path | auto; ``spp`` samples per measurement; ``seed``;
+    ``threads`` worker threads (default all cores); ``max_depth`` longest path in
+    bounces, laser spot and sensor point included (3 = one hidden bounce, -1 unbounded);
+    ``laser_sampling``, ``hidden_geometry_sampling``, ``bsdf_sampling`` the path
+    model's techniques; ``visibility`` (tri3) none | centroid | subtriangle;
+    ``subdivision`` (tri3) the sub-triangle threshold; ``max_error`` (auto) the relative
+    error the chosen model may leave."""
+    return _render(scene, spp=spp, model=model, seed=seed, threads=threads,
+                   max_depth=max_depth, laser_sampling=laser_sampling,
+                   hidden_geometry_sampling=hidden_geometry_sampling,
+                   bsdf_sampling=bsdf_sampling, visibility=visibility,
+                   subdivision=subdivision, max_error=max_error)
 
 
-def grad(scene: Scene, adjoint: np.ndarray, spp: "int | None" = None, model: "str | None" = None,
-         seed: "int | None" = None, threads: "int | None" = None) -> dict:
-    """``dLoss/dθ`` given ``adjoint = dLoss/dH`` (the render's shape): a dict with
-    ``vertices`` ((V, 3) float64, rows in the OBJ's ``v`` order; a list of such arrays if
-    the scene has several hidden objects), ``albedo`` (one per object) and
-    ``vertex_albedo`` (per object, None without vertex colours). Use the render's seed
-    for a Monte Carlo model: the adjoint pass replays its paths."""
-    adjoint = np.ascontiguousarray(adjoint, dtype=np.float32)
-    return _grad(scene, adjoint, spp=spp, model=model, seed=seed, threads=threads)
+def grad(scene: Scene, adjoint: Optional[npt.ArrayLike] = None, spp: Optional[int] = None,
+         model: Optional[str] = None, seed: Optional[int] = None,
+         threads: Optional[int] = None, *, target: Optional[npt.ArrayLike] = None,
+         loss: str = "l2", max_depth: Optional[int] = None,
+         laser_sampling: Optional[bool] = None, hidden_geometry_sampling: Optional[bool] = None,
+         bsdf_sampling: Optional[bool] = None, visibility: Optional[str] = None,
+         subdivision: Optional[float] = None, max_error: Optional[float] = None) -> Dict[str, Any]:
+    """``dLoss/dθ`` for the scene's hidden objects, given either
+
+    - ``adjoint = dLoss/dH`` (the render's shape) for a loss of your own, or
+    - ``target`` (the render's shape, e.g. a measurement) and ``loss``: ``"l2"``
+      (``Σ (H - target)²``) or ``"l2-normalized"`` (per scan point, each transient over
+      its norm: insensitive to each point's scale); the scene is rendered first.
+
+    Returns a dict; every gradient array is float64 (H and adjoints are float32):
+
+    - ``vertices``: a list with one ``(V_k, 3)`` array per hidden object (also for a
+      single object: ``g["vertices"][0]``), rows in the OBJ's ``v`` order;
+    - ``albedo``: ``(K,)``, one value per object (0 for an object with vertex albedo);
+    - ``vertex_albedo``: a list with, per object, a ``(V_k,)`` array, or None for an
+      object without per-vertex albedo;
+    - ``loss``: the loss value (float) with ``target``, None with ``adjoint``;
+    - ``render``: with ``target``, the float32 render the loss was computed on, else None;
+    - ``truncated_paths``: path contributions whose gradient was cut short (``path``).
+
+    Options are :func:`render`'s. Use the render's seed for a Monte Carlo model: the
+    adjoint pass replays its paths. Inputs of another dtype than float32 are converted
+    once; a C-contiguous float32 array is read in place."""
+    return _grad(scene, adjoint, target, loss, spp=spp, model=model, seed=seed,
+                 threads=threads, max_depth=max_depth, laser_sampling=laser_sampling,
+                 hidden_geometry_sampling=hidden_geometry_sampling,
+                 bsdf_sampling=bsdf_sampling, visibility=visibility,
+                 subdivision=subdivision, max_error=max_error)
+
+
+def _schedule_toml(stages: Sequence[Mapping[str, Any]]) -> str:
+    out = []
+    for st in stages:
+        out.append("[[stage]]")
+        for k, v in st.items():
+            if isinstance(v, bool):
+                out.append(f"{k} = {'true' if v else 'false'}")
+            elif isinstance(v, (int, np.integer)):
+                out.append(f"{k} = {int(v)}")
+            elif isinstance(v, (float, np.floating)):
+                out.append(f"{k} = {float(v)!r}")
+            elif isinstance(v, str):
+                out.append(f'{k} = "{v}"')
+            else:
+                raise UmbraError(f"schedule: stage value {k} = {v!r} is not a number, bool or string")
+    return "\n".join(out) + "\n"
+
+
+def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
+        output: Optional[PathLike] = None, init: str = "plane",
+        schedule: Union[None, PathLike, Sequence[Mapping[str, Any]]] = None,
+        iters: Optional[int] = None, resume: bool = False, model: str = "tri3", spp: int = 16,
+        known_scale: bool = False, background: Optional[str] = None,
+        jitter: Optional[float] = None, irf: Optional[str] = None,
+        time_offset: Optional[float] = None, reflectance: Optional[str] = None,
+        ignore_before: Optional[float] = None, truth: bool = False,
+        bin: Optional[Tuple[int, int]] = None, target_spp: int = 4096,
+        threads: Optional[int] = None,
+        progress: Optional[Callable[[Dict[str, Any]], Any]] = None) -> Dict[str, Any]:
+    """Fits a hidden triangle mesh to a measurement by the code of ``umbra fit`` (same
+    schedule, same defaults; ``umbra fit --help`` describes each option).
+
+    ``measured``: an array in the scene's output layout, a file (``.npy``, y-tal
+    ``.hdf5``, Stanford LCT ``.mat``), or None for a demonstration: the scene's hidden
+    objects rendered with ``path`` at ``target_spp`` as the target, and the fit compared
+    with them. ``truth=True`` compares with the scene's hidden objects for a given
+    measurement too. ``schedule``: a schedule TOML file, or a list of stage dicts
+    (``iters``, ``solver``, ``lr``, ``large_steps``, ``laplacian``, ``fit_albedo``,
+    ``time_downsample``, ``scan_downsample``, ``model``, ``spp``, ...); ``iters`` scales
+    its stages to that total. ``output``: a directory for mesh.obj, loss.csv/png,
+    transients.png, reconstruction.png, summary.toml and the checkpoint (default: a
+    temporary directory, removed afterwards). ``progress(d)`` is called after every
+    iteration with ``d = {"iteration", "stage", "loss", "data_loss", "smoothness"}``; an
+    exception it raises stops the fit and propagates. Ctrl-C stops it at the end of the
+    iteration (KeyboardInterrupt; ``resume=True`` continues from the checkpoint).
+
+    Returns a dict: ``vertices`` (N, 3) float64 and ``triangles`` (F, 3) uint32, the
+    fitted surface (faces fitted dark dropped, as mesh.obj); ``full_mesh`` (every face,
+    with ``vertex_albedo``); ``history`` (numpy arrays ``iteration``, ``stage``, ``loss``
+    (total), ``data_loss``, ``smoothness``); ``final_loss`` (``‖sH + b − M‖² / ‖M‖²`` at
+    full resolution) and ``relative_l2``; ``scale``, ``background``, ``time_offset``;
+    ``render`` (the fitted transient ``sH + b``, float32, the measurement's layout) and
+    ``measured`` (the measurement as fitted); ``chamfer`` (mm, with a truth) or None;
+    ``photon_noise_floor``; ``rejected_steps``; ``seconds``; ``files``."""
+    toml_text = None
+    if schedule is not None:
+        if isinstance(schedule, (str, os.PathLike)):
+            with open(schedule, encoding="utf-8") as f:
+                toml_text = f.read()
+        else:
+            toml_text = _schedule_toml(schedule)
+    kw: Dict[str, Any] = dict(init=init, schedule=toml_text, iters=iters, resume=resume, model=model, spp=spp,
+              known_scale=known_scale, background=background, jitter=jitter, irf=irf,
+              time_offset=time_offset, reflectance=reflectance, ignore_before=ignore_before,
+              truth=truth, bin=bin, target_spp=target_spp, threads=threads, progress=progress)
+    if output is not None:
+        return _fit(scene, measured, os.fspath(output), **kw)
+    with tempfile.TemporaryDirectory(prefix="umbra-fit-") as tmp:
+        out = _fit(scene, measured, tmp, **kw)
+    out["files"] = []
+    return out
 
 
 # --- Mitsuba dicts -> Mitsuba XML ---------------------------------------------------
@@ -93,7 +217,7 @@ def _element(name: "str | None", v: Any, indent: str) -> str:
             value = v.get("value", 0.0)
             text = ", ".join(str(float(x)) for x in np.atleast_1d(value))
             return f'{indent}<{kind}{attr} value="{text}"/>\n'
-        tag = _CATEGORY.get(kind)
+        tag = _CATEGORY.get(str(kind))
         if tag is None:
             raise UmbraError(f"dict scene: unknown plugin type {kind!r} (under {name!r})")
         ident = f' id="{name}"' if name is not None and tag in ("shape", "emitter") else ""

@@ -10,6 +10,8 @@
 //!   next to a backprojection;
 //! - [`init`]: initial meshes (a plane or a sphere in front of the wall at the depth the
 //!   data's first returns imply);
+//! - [`request`]: a fit as the CLI and Python ask for it (measurement, defaults,
+//!   truth), the one entry point of both;
 //! - [`run`]: the whole fit with its outputs (mesh, loss curve, transients side by side,
 //!   checkpoints).
 
@@ -18,6 +20,7 @@ pub mod intensity;
 pub mod metrics;
 pub mod objective;
 pub mod reconstruction;
+pub mod request;
 pub mod resolution;
 pub mod run;
 pub mod time_offset;
@@ -43,4 +46,5 @@ pub fn fit_mesh(m: &TriMesh) -> optim::Mesh {
             .map_or(Vec::new(), |a| a.iter().map(|&v| v as f64).collect()),
     }
 }
+pub use request::{FitOutcome, FitRequest, Measurement};
 pub use run::{default_schedule, fit, initial_mesh, FitConfig, FitReport, Init};

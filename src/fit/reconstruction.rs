@@ -8,7 +8,8 @@
 //! Its depth map keeps the columns whose peak is at least [`DEPTH_THRESHOLD`] of the
 //! volume's maximum (`recon::depth_map`).
 //!
-//! The picture has four panels, all seen from the wall (`+x` to the left, so a letter
+//! The picture has four labelled panels, each with a colour bar in its units, all seen
+//! from the wall (`+x` to the left, so a letter
 //! facing the wall reads correctly): the backprojection's front maximum-intensity
 //! projection; the fitted surface's albedo (the first hidden surface along the wall
 //! normal from each column, `recon::surface_depth_map`; all faces, dark ones too, since
@@ -18,9 +19,10 @@
 use super::objective::hidden_object;
 use crate::error::Result;
 use crate::geometry::SceneGeometry;
+use crate::io::plot::{labelled_maps, MapPanel};
 use crate::recon::{
-    backproject_with, depth_map, depth_map_mesh, surface_depth_map, write_comparison_png,
-    BackprojectOptions, DepthMap, MeshOptions, Volume, VoxelGrid, WallFrame,
+    backproject_with, depth_map, depth_map_mesh, surface_depth_map, BackprojectOptions, DepthMap,
+    MeshOptions, Volume, VoxelGrid, WallFrame,
 };
 use crate::scene::Scene;
 use optim::Mesh;
@@ -89,5 +91,59 @@ pub fn write_reconstruction_png(
     };
     let geometry = SceneGeometry::build(&with_fit);
     let fit_depth = surface_depth_map(&geometry, &volume.grid, &WallFrame::of(scene));
-    write_comparison_png(path, &volume, &fit_depth, &[&fbp_depth, &fit_depth])
+    let [nx, ny, _] = volume.grid.dims;
+    // Seen from the wall: +y up (top row last), +x to the left (last column first).
+    let seen = |f: &dyn Fn(usize, usize) -> f32| -> Vec<f32> {
+        (0..ny)
+            .rev()
+            .flat_map(|iy| (0..nx).rev().map(move |ix| (iy, ix)))
+            .map(|(iy, ix)| f(ix, iy))
+            .collect()
+    };
+    let relative = |v: Vec<f32>| {
+        let max = v
+            .iter()
+            .copied()
+            .filter(|x| x.is_finite())
+            .fold(0.0f32, f32::max);
+        v.into_iter()
+            .map(|x| if max > 0.0 { x.max(0.0) / max } else { 0.0 })
+            .collect::<Vec<f32>>()
+    };
+    let mip = relative(seen(&|ix, iy| {
+        volume.column(ix, iy).iter().copied().fold(0.0, f32::max)
+    }));
+    let albedo = relative(seen(&|ix, iy| fit_depth.intensity[iy * nx + ix]));
+    let depth_of = |dm: &DepthMap| seen(&|ix, iy| dm.at(ix, iy));
+    let (fbp_d, fit_d) = (depth_of(&fbp_depth), depth_of(&fit_depth));
+    let (lo, hi) = fbp_d
+        .iter()
+        .chain(&fit_d)
+        .filter(|v| v.is_finite())
+        .fold((f32::MAX, f32::MIN), |(l, h), &v| (l.min(v), h.max(v)));
+    let (lo, hi) = if lo <= hi {
+        (lo, hi.max(lo + 1e-3))
+    } else {
+        (0.0, 1.0)
+    };
+    let threshold = format!("{:.0} %", 100.0 * DEPTH_THRESHOLD);
+    let titles = [
+        "filtered backprojection:\nmax. over depth (front view)".to_string(),
+        "fitted surface: albedo of the\nfirst face along the wall normal".to_string(),
+        format!("backprojection: depth of each\ncolumn's peak (black: < {threshold})"),
+        "fitted surface: depth\n(black: no surface)".to_string(),
+    ];
+    let extent = volume.grid.max - volume.grid.min;
+    let (su, sv) = (extent.x, extent.y);
+    labelled_maps(
+        path,
+        &format!("umbra fit: the measurement's backprojection next to the fitted surface ({nx} x {ny} columns)"),
+        &[
+            MapPanel { title: &titles[0], width: nx, height: ny, values: &mip, range: (0.0, 1.0), unit: "intensity / its maximum" },
+            MapPanel { title: &titles[1], width: nx, height: ny, values: &albedo, range: (0.0, 1.0), unit: "albedo / its maximum" },
+            MapPanel { title: &titles[2], width: nx, height: ny, values: &fbp_d, range: (lo, hi), unit: "depth from the wall (m)" },
+            MapPanel { title: &titles[3], width: nx, height: ny, values: &fit_d, range: (lo, hi), unit: "depth from the wall (m)" },
+        ],
+        &format!("All panels seen from the wall into the hidden scene: +y up, +x to the left (a letter facing the wall reads\ncorrectly); each spans the voxel grid, {su:.2} m x {sv:.2} m. Depths share one scale: near dark, far bright."),
+    )
 }

@@ -89,6 +89,10 @@ pub struct FitReport {
     /// The fitted time offset (OPL, m; 0 unless searched).
     pub time_offset_opl: f64,
     pub rejected_steps: u64,
+    /// The final mesh's fitted transient at full resolution, `s K H + b` (scale,
+    /// detector response and background applied; bins left out of the fit are zero), in
+    /// the measurement's layout.
+    pub render: Vec<f32>,
     pub files: Vec<PathBuf>,
 }
 
@@ -294,7 +298,21 @@ pub fn fit(
         Ok(()) => files.push(picture),
         Err(e) => eprintln!("umbra fit: warning: {} not written: {e}", picture.display()),
     }
+    let bins = base.film.temporal_bins as usize;
+    let render = render
+        .iter()
+        .enumerate()
+        .map(|(i, &h)| {
+            let t = i % bins.max(1);
+            if t < first {
+                0.0
+            } else {
+                (intensity.scale * h as f64 + intensity.background_at(t)) as f32
+            }
+        })
+        .collect();
     Ok(FitReport {
+        render,
         mesh: surface,
         full_mesh: outcome.mesh,
         history: outcome.history,
@@ -335,28 +353,31 @@ fn write_loss(out: &Path, history: &[LossRecord]) -> Result<Vec<PathBuf>> {
         .filter(|w| w[0].stage != w[1].stage)
         .map(|w| w[1].iteration as f64 - 0.5)
         .collect();
-    let series = [
+    let points = |f: &dyn Fn(&LossRecord) -> f64| -> Vec<(f64, f64)> {
+        history.iter().map(|r| (r.iteration as f64, f(r))).collect()
+    };
+    let mut series = vec![
+        Series {
+            label: "total = data + smoothness",
+            points: points(&|r| r.cost),
+        },
         Series {
             label: "data loss |sH - M|^2 / |M|^2 (at the stage's resolution)",
-            points: history
-                .iter()
-                .map(|r| (r.iteration as f64, r.data_loss))
-                .collect(),
-        },
-        Series {
-            label: "total (with smoothness)",
-            points: history
-                .iter()
-                .map(|r| (r.iteration as f64, r.cost))
-                .collect(),
+            points: points(&|r| r.data_loss),
         },
     ];
+    if history.iter().any(|r| r.smoothness > 0.0) {
+        series.push(Series {
+            label: "smoothness (Laplacian) term",
+            points: points(&|r| r.smoothness),
+        });
+    }
     if !history.is_empty() {
         log_chart(
             &png,
-            "umbra fit: loss per iteration (stages marked)",
+            "umbra fit: loss per iteration",
             "iteration",
-            "loss",
+            "loss (relative, dimensionless)",
             &series,
             &marks,
         )?;

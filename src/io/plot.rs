@@ -61,7 +61,8 @@ pub struct Series<'a> {
 }
 
 /// A line chart with a logarithmic y axis (non-positive values are dropped), e.g. a
-/// loss curve; `marks` are x positions drawn as vertical lines (stage boundaries).
+/// loss curve; `marks` are x positions drawn as vertical lines (stage boundaries). The
+/// first series is a wide grey line, the others dashed and coloured over it.
 pub fn log_chart(
     path: &Path,
     title: &str,
@@ -81,7 +82,11 @@ pub fn log_chart(
     }
     let (x0, x1, y0, y1) = bounds(&pts);
     let x1 = if x1 > x0 { x1 } else { x0 + 1.0 };
-    let (y0, y1) = (y0 / 1.5, if y1 > y0 { y1 * 1.5 } else { y0 * 2.0 });
+    // The y axis is linear in log10(y), labelled with y itself (ticks wherever the
+    // range falls, even within one decade).
+    let (l0, l1) = (y0.log10(), y1.log10());
+    let pad = (0.08 * (l1 - l0)).max(0.02);
+    let (y0, y1) = (l0 - pad, l1 + pad);
     let root = BitMapBackend::new(path, (900, 560)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(path, e))?;
     let mut chart = ChartBuilder::on(&root)
@@ -89,36 +94,58 @@ pub fn log_chart(
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(80)
-        .build_cartesian_2d(x0..x1, (y0..y1).log_scale())
+        .build_cartesian_2d(x0..x1, y0..y1)
         .map_err(|e| err(path, e))?;
     chart
         .configure_mesh()
         .x_desc(x_label)
         .y_desc(y_label)
         .label_style((FAMILY, 14))
-        .y_label_formatter(&|v| format!("{v:.1e}"))
+        .light_line_style(WHITE)
+        .y_labels(10)
+        .y_label_formatter(&|v| format!("{:.2e}", 10f64.powf(*v)))
         .draw()
         .map_err(|e| err(path, e))?;
-    for &m in marks {
-        chart
-            .draw_series(LineSeries::new([(m, y0), (m, y1)], BLACK.mix(0.25)))
+    let mark_style = RGBColor(60, 60, 60).stroke_width(1);
+    for (i, &m) in marks.iter().enumerate() {
+        let drawn = chart
+            .draw_series(DashedLineSeries::new([(m, y0), (m, y1)], 4, 4, mark_style))
             .map_err(|e| err(path, e))?;
+        if i == 0 {
+            drawn
+                .label("stage boundary")
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], mark_style));
+        }
     }
+    // The first series is drawn wide and pale, the others dashed on top of it in strong
+    // colours: where they coincide (a fit without regularisation) both stay visible.
+    const COLOURS: [RGBColor; 4] = [
+        RGBColor(150, 150, 150),
+        RGBColor(200, 30, 30),
+        RGBColor(30, 90, 200),
+        RGBColor(20, 150, 60),
+    ];
     for (k, s) in series.iter().enumerate() {
-        let colour = Palette99::pick(k).to_rgba();
+        let colour = COLOURS[k % COLOURS.len()];
+        let width = if k == 0 { 6 } else { 2 };
         let pts: Vec<(f64, f64)> = s
             .points
             .iter()
-            .cloned()
             .filter(|p| p.1 > 0.0 && p.1.is_finite())
+            .map(|p| (p.0, p.1.log10()))
             .collect();
-        chart
-            .draw_series(LineSeries::new(pts, colour.stroke_width(2)))
+        let style = colour.stroke_width(width);
+        let drawn = if k == 0 {
+            chart.draw_series(LineSeries::new(pts, style))
+        } else {
+            chart.draw_series(DashedLineSeries::new(pts, 10, 6, style))
+        };
+        drawn
             .map_err(|e| err(path, e))?
             .label(s.label)
-            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2)));
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], style));
     }
-    legend(&mut chart, path, SeriesLabelPosition::MiddleRight, 14)?;
+    legend(&mut chart, path, SeriesLabelPosition::LowerLeft, 14)?;
     root.present().map_err(|e| err(path, e))?;
     Ok(())
 }
@@ -345,6 +372,110 @@ pub fn loglog_panel_chart(
         if !shared {
             legend(&mut chart, path, SeriesLabelPosition::LowerLeft, 11)?;
         }
+    }
+    root.present().map_err(|e| err(path, e))?;
+    Ok(())
+}
+
+/// One labelled image of [`labelled_maps`]: `values` row-major, top row first, NaN for
+/// "nothing here" (drawn black); the colour map spans `range` (`lo` dark, `hi` bright),
+/// explained under the image by a colour bar from `lo` to `hi` with `unit`.
+pub struct MapPanel<'a> {
+    /// What the panel shows (lines separated by `\n`).
+    pub title: &'a str,
+    pub width: usize,
+    pub height: usize,
+    pub values: &'a [f32],
+    pub range: (f32, f32),
+    /// The colour bar's caption, e.g. "depth from the wall (m)".
+    pub unit: &'a str,
+}
+
+/// Images side by side, each with its title above and a labelled colour bar below;
+/// `title` heads the picture and `footer` (e.g. the orientation) ends it.
+pub fn labelled_maps(path: &Path, title: &str, panels: &[MapPanel], footer: &str) -> Result<()> {
+    register_font();
+    const SIDE: usize = 256;
+    const GAP: i32 = 24;
+    const TOP: i32 = 84;
+    for p in panels {
+        if p.values.len() != p.width * p.height || p.width == 0 || p.height == 0 {
+            return Err(err(
+                path,
+                format!(
+                    "a panel of {} values is not {} x {}",
+                    p.values.len(),
+                    p.width,
+                    p.height
+                ),
+            ));
+        }
+    }
+    let zoom = |p: &MapPanel| (SIDE / p.width.max(p.height)).max(1);
+    let image_h = panels.iter().map(|p| p.height * zoom(p)).max().unwrap_or(1) as i32;
+    let total_w: i32 = panels
+        .iter()
+        .map(|p| (p.width * zoom(p)).max(SIDE) as i32 + GAP)
+        .sum::<i32>()
+        + GAP;
+    let (w, h) = (total_w.max(400) as u32, (TOP + image_h + 110) as u32);
+    let root = BitMapBackend::new(path, (w, h)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(path, e))?;
+    let text = |t: &str, x: i32, y: i32, size: u32| {
+        root.draw(&Text::new(t.to_string(), (x, y), (FAMILY, size)))
+            .map_err(|e| err(path, e))
+    };
+    text(title, GAP, 8, 16)?;
+    let mut x = GAP;
+    for p in panels {
+        let k = zoom(p);
+        for (i, line) in p.title.lines().enumerate() {
+            text(line, x, 36 + 16 * i as i32, 13)?;
+        }
+        let (lo, hi) = p.range;
+        let span = if hi > lo { hi - lo } else { 1.0 };
+        for r in 0..p.height {
+            for c in 0..p.width {
+                let v = p.values[r * p.width + c];
+                let [cr, cg, cb] = if v.is_finite() {
+                    inferno(((v - lo) / span).clamp(0.0, 1.0))
+                } else {
+                    [0, 0, 0]
+                };
+                let (px, py) = (x + (c * k) as i32, TOP + (r * k) as i32);
+                root.draw(&Rectangle::new(
+                    [(px, py), (px + k as i32, py + k as i32)],
+                    RGBColor(cr, cg, cb).filled(),
+                ))
+                .map_err(|e| err(path, e))?;
+            }
+        }
+        // The colour bar: lo at the left, hi at the right.
+        let bar_w = (p.width * k) as i32;
+        let y = TOP + image_h + 10;
+        for i in 0..bar_w {
+            let [cr, cg, cb] = inferno(i as f32 / (bar_w - 1).max(1) as f32);
+            root.draw(&Rectangle::new(
+                [(x + i, y), (x + i + 1, y + 12)],
+                RGBColor(cr, cg, cb).filled(),
+            ))
+            .map_err(|e| err(path, e))?;
+        }
+        let fmt = |v: f32| {
+            if v.abs() >= 100.0 || v == 0.0 {
+                format!("{v:.0}")
+            } else {
+                format!("{v:.3}")
+            }
+        };
+        text(&fmt(lo), x, y + 16, 12)?;
+        let hi_label = fmt(hi);
+        text(&hi_label, x + bar_w - 7 * hi_label.len() as i32, y + 16, 12)?;
+        text(p.unit, x, y + 32, 12)?;
+        x += (p.width * k).max(SIDE) as i32 + GAP;
+    }
+    for (i, line) in footer.lines().enumerate() {
+        text(line, GAP, TOP + image_h + 62 + 16 * i as i32, 12)?;
     }
     root.present().map_err(|e| err(path, e))?;
     Ok(())

@@ -4,14 +4,13 @@
 
 use indicatif::{ProgressBar, ProgressStyle};
 use std::cell::RefCell;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::rc::Rc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
-use umbra::fit::{default_schedule, FitConfig, Init};
-use umbra::geometry::SceneGeometry;
-use umbra::scene::{Model, Scene};
-use umbra::transport::{RenderOptions, Renderer};
+use umbra::fit::request::parse_schedule;
+use umbra::fit::{default_schedule, FitRequest, Measurement};
+use umbra::scene::Scene;
 use umbra::{Error, Result};
 
 #[derive(clap::Args)]
@@ -116,68 +115,20 @@ fn parse_bin(text: &str) -> std::result::Result<(u32, u32), String> {
     }
 }
 
-fn load_schedule(args: &FitArgs) -> Result<optim::Schedule> {
-    let mut schedule = match &args.config {
+fn load_schedule(args: &FitArgs) -> Result<Option<optim::Schedule>> {
+    match &args.config {
         Some(path) => {
             let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-            toml::from_str(&text)
-                .map_err(|e| Error::scene(path, format!("not a fit schedule: {e}")))?
+            Ok(Some(parse_schedule(&text, path)?))
         }
-        None => default_schedule(),
-    };
-    if schedule.stages.is_empty() {
-        return Err(Error::Invalid("the schedule has no [[stage]]".into()));
+        None => Ok(None),
     }
-    if let Some(total) = args.iters {
-        let old: u64 = schedule.stages.iter().map(|s| s.iters).sum::<u64>().max(1);
-        for s in &mut schedule.stages {
-            s.iters = (s.iters * total).div_ceil(old).max(1);
-        }
-    }
-    Ok(schedule)
 }
 
-fn to_mesh(scene: &Scene) -> Result<optim::Mesh> {
-    let mut m = optim::Mesh::default();
-    for o in &scene.objects {
-        let part = umbra::fit::fit_mesh(&o.mesh);
-        let base = m.vertices.len() as u32;
-        m.vertices.extend(part.vertices);
-        m.faces
-            .extend(part.faces.iter().map(|t| t.map(|i| i + base)));
-    }
-    if m.faces.is_empty() {
-        return Err(Error::Invalid(
-            "--init scene: the scene has no hidden mesh".into(),
-        ));
-    }
-    Ok(m)
-}
-
-/// The demonstration target: the scene's hidden objects through the `path` model.
-fn render_target(scene: &Scene, spp: u32, out: &Path) -> Result<Vec<f32>> {
-    let geom = SceneGeometry::build(scene);
-    let opts = RenderOptions {
-        model: Model::Path,
-        spp,
-        ..RenderOptions::from_scene(scene)
-    };
-    let t = Renderer::new(scene, &geom, &opts)?.render(None)?;
-    umbra::io::write_npy(&out.join("target.npy"), &t)?;
-    Ok(t.data)
-}
-
+/// `umbra fit`: the arguments as a [`FitRequest`], run by the library's
+/// [`umbra::fit::request::run`] (the function Python's `umbra.fit` calls too), with a
+/// progress bar, Ctrl-C and the results printed.
 pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
-    let schedule = load_schedule(&args)?;
-    let model = Model::parse(&args.model)
-        .filter(|m| *m != Model::Auto)
-        .ok_or_else(|| {
-            Error::Invalid(format!(
-                "--model: '{}' is not one of tri3, mc3, path",
-                args.model
-            ))
-        })?;
-    std::fs::create_dir_all(&args.output).map_err(|e| Error::io(&args.output, e))?;
     if let Some(t) = args.threads {
         // The fit drives the renderer from this thread (its progress callback is not
         // Send), so the thread count goes to rayon's global pool.
@@ -186,190 +137,38 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
             .build_global()
             .map_err(|e| Error::Invalid(format!("thread pool: {e}")))?;
     }
-    let (scene, measured, truth) = match &args.measured {
-        Some(path) => {
-            let m = umbra::io::measured::read_measured(path)?;
-            let truth = if args.truth {
-                Some((to_mesh(&scene)?, scene.clone()))
-            } else {
-                None
-            };
-            let scene = m.scene_for(&scene)?;
-            m.check_against(&scene)?;
-            (scene, m.transient.data, truth)
-        }
-        None => {
-            let truth = to_mesh(&scene)?;
-            eprintln!(
-                "umbra fit: no --measured: rendering the scene's hidden objects ({} triangles) with the path model at {} spp as the target",
-                truth.faces.len(),
-                args.target_spp
-            );
-            let data = render_target(&scene, args.target_spp, &args.output)?;
-            (scene.clone(), data, Some((truth, scene)))
-        }
-    };
-    let is_lct = args
-        .measured
-        .as_ref()
-        .is_some_and(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("mat")));
-    let lct_default = is_lct.then_some(600.0 * umbra::io::lct::LCT_BIN_OPL);
-    let bin = args.bin.unwrap_or(if is_lct { (8, 2) } else { (1, 1) });
-    let counts = args.measured.is_some() && measured.iter().all(|&v| v >= 0.0 && v.fract() == 0.0);
-    let (scene, measured) = if bin == (1, 1) {
-        (scene, measured)
-    } else {
-        let (mut binned, data) = umbra::fit::resolution::at_resolution(
-            &scene,
-            &measured,
-            bin.0,
-            bin.1,
-            umbra::fit::resolution::ScanReduce::Average,
-        )
-        .map_err(|e| Error::Invalid(format!("--bin {},{}: {e}", bin.0, bin.1)))?;
-        binned.objects = scene.objects.clone();
-        eprintln!(
-            "umbra fit: measurement binned {},{}: {} x {} scan points, {} bins of {:.2} mm",
-            bin.0,
-            bin.1,
-            binned.scan.nx,
-            binned.scan.ny,
-            binned.film.temporal_bins,
-            1e3 * binned.film.bin_width_opl
-        );
-        (binned, data)
-    };
-    let ignore_before_opl = args.ignore_before.or(lct_default);
-    let noise_floor =
-        counts.then(|| photon_noise_floor(&scene, &measured, bin.1, ignore_before_opl));
-    let init = match args.init.as_str() {
-        "plane" => Init::Plane,
-        "sphere" => Init::Sphere,
-        "scene" => Init::Mesh(to_mesh(&scene)?),
-        "backprojection" => Init::Backprojection,
-        other => {
-            return Err(Error::Invalid(format!(
-                "--init: '{other}' is not one of plane, sphere, scene, backprojection"
-            )))
-        }
-    };
-    let reflectance = match &args.reflectance {
-        None => scene
-            .objects
-            .first()
-            .map_or(Default::default(), |o| o.reflectance),
-        Some(r) => umbra::scene::Reflectance::parse(r).ok_or_else(|| {
-            Error::Invalid(format!(
-                "--reflectance: '{r}' is not one of lambertian, retroreflective"
-            ))
-        })?,
-    };
-    let irf_choice = args.irf.clone().unwrap_or_else(|| {
-        if is_lct {
-            "direct".into()
-        } else {
-            "none".into()
-        }
-    });
-    if irf_choice != "none" && args.jitter.is_some() {
-        return Err(Error::Invalid(if args.irf.is_some() {
-            "--jitter and --irf both give the detector's response: give one".into()
-        } else {
-            "--jitter and --irf both give the detector's response: LCT captures use --irf direct by default, add --irf none for the Gaussian".into()
-        }));
-    }
-    let width = scene.film.bin_width_opl as f64;
-    let irf = match irf_choice.as_str() {
-        "none" => None,
-        "direct" => {
-            let first = umbra::fit::objective::first_fitted_bin(&scene, ignore_before_opl);
-            if first == 0 {
-                return Err(Error::Invalid(
-                    "--irf direct: the direct return is the bins before --ignore-before OPL, and none are left out".into(),
-                ));
-            }
-            let bins = scene.film.temporal_bins as usize;
-            let irf = umbra::film::irf::Irf::from_direct_return(&measured, bins, first, width)
-                .ok_or_else(|| {
-                    Error::Invalid(
-                        "--irf direct: the measurement's leading bins hold nothing above its floor"
-                            .into(),
-                    )
-                })?;
-            eprintln!(
-                "umbra fit: detector response from the direct return: {} bins of {:.2} mm, {:.0} % of it beyond 24 mm",
-                irf.taps.len(),
-                1e3 * width,
-                100.0 * irf.taps_at(0.024).iter().skip(1).sum::<f64>()
-            );
-            Some(irf)
-        }
-        file => {
-            let path = Path::new(file);
-            let t = umbra::io::read_npy(path)?;
-            let total: f64 = t.data.iter().map(|&v| v as f64).sum();
-            if t.shape.len() != 1
-                || t.data.iter().any(|v| !v.is_finite() || *v < 0.0)
-                || total <= 0.0
-            {
-                return Err(Error::Invalid(format!(
-                    "--irf {file}: expected a 1-D array of non-negative taps (shape {:?})",
-                    t.shape
-                )));
-            }
-            Some(umbra::film::irf::Irf {
-                bin_width: width,
-                taps: t.data.iter().map(|&v| v as f64 / total).collect(),
-            })
-        }
-    };
-    let jitter_opl = args.jitter.unwrap_or(0.0);
-    if irf.is_some() && args.time_offset.is_some() {
-        return Err(Error::Invalid(
-            "--time-offset shifts the --jitter Gaussian: use it with --irf none".into(),
-        ));
-    }
-    if !(jitter_opl.is_finite() && jitter_opl >= 0.0) {
-        return Err(Error::Invalid(format!(
-            "--jitter: {jitter_opl} is not a standard deviation (OPL, m, >= 0)"
-        )));
-    }
-    let time_offset_max_opl = args.time_offset.unwrap_or(0.0);
-    if !(time_offset_max_opl.is_finite() && time_offset_max_opl >= 0.0) {
-        return Err(Error::Invalid(format!(
-            "--time-offset: {time_offset_max_opl} is not a search range (OPL, m, >= 0)"
-        )));
-    }
-    if time_offset_max_opl > 0.0 && jitter_opl <= 0.0 {
-        return Err(Error::Invalid(
-            "--time-offset needs --jitter SIGMA > 0: with box bins the loss is piecewise constant in the offset (no gradient to find it by)".into(),
-        ));
-    }
-    let cfg = FitConfig {
-        schedule,
-        init,
-        model,
-        spp: args.spp.max(1),
-        intensity: umbra::fit::IntensityModel {
-            scale: !args.known_scale,
-            background: args.background.unwrap_or(if args.measured.is_none() {
-                umbra::fit::Background::None
-            } else if is_lct {
-                umbra::fit::Background::PerBin
-            } else {
-                umbra::fit::Background::Constant
-            }),
+    let measurement = match &args.measured {
+        Some(p) => Measurement::File(p.clone()),
+        None => Measurement::Demo {
+            target_spp: args.target_spp,
         },
-        two_sided: true,
-        albedo: scene.objects.first().map_or(0.8, |o| o.albedo),
-        resume: args.resume,
-        ignore_before_opl,
-        jitter_opl,
-        irf,
-        time_offset_max_opl,
-        reflectance,
     };
-    let total: u64 = cfg.schedule.stages.iter().map(|s| s.iters).sum();
+    let req = FitRequest {
+        schedule: load_schedule(&args)?,
+        iters: args.iters,
+        resume: args.resume,
+        init: args.init.clone(),
+        model: args.model.clone(),
+        spp: args.spp,
+        known_scale: args.known_scale,
+        background: args.background,
+        jitter: args.jitter,
+        irf: args.irf.clone(),
+        time_offset: args.time_offset,
+        reflectance: args.reflectance.clone(),
+        ignore_before: args.ignore_before,
+        truth: args.truth,
+        bin: args.bin,
+        ..FitRequest::new(measurement, args.output.clone())
+    };
+    let total: u64 = req
+        .schedule
+        .as_ref()
+        .map_or_else(default_schedule, |s| s.clone())
+        .stages
+        .iter()
+        .map(|s| s.iters)
+        .sum();
     let bar = if args.quiet {
         ProgressBar::hidden()
     } else {
@@ -398,9 +197,11 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
             b.set_message(format!("stage {} loss {:.4e}", r.stage, r.data_loss));
             !c.load(Ordering::Relaxed)
         }));
-    let report = umbra::fit::fit(&scene, &measured, &cfg, &args.output, progress);
+    let b = bar.clone();
+    let mut log = move |note: &str| b.suspend(|| eprintln!("umbra fit: {note}"));
+    let outcome = umbra::fit::request::run(scene, &req, progress, &mut log);
     bar.finish_and_clear();
-    let report = match report {
+    let outcome = match outcome {
         Err(Error::Cancelled) => {
             eprintln!(
                 "umbra fit: interrupted; the checkpoint in {} resumes with --resume",
@@ -410,7 +211,8 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         }
         r => r?,
     };
-    if let Some(floor) = noise_floor {
+    let (report, summary) = (&outcome.report, &outcome.summary);
+    if let Some(floor) = summary.photon_noise_floor {
         println!(
             "umbra fit: the measurement is photon counts: Poisson noise alone gives a relative L2 of {floor:.3} at this resolution"
         );
@@ -438,106 +240,16 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
             1e3 * report.time_offset_opl
         );
     }
-    let mut summary = Summary {
-        iterations: report.history.len(),
-        seconds: report.seconds,
-        final_loss: report.final_loss,
-        relative_l2: report.final_loss.sqrt(),
-        scale: report.intensity.scale,
-        background: report.intensity.background,
-        time_offset: report.time_offset_opl,
-        vertices: report.mesh.vertices.len(),
-        faces: report.mesh.faces.len(),
-        rejected_steps: report.rejected_steps,
-        init: args.init.clone(),
-        photon_noise_floor: noise_floor,
-        chamfer: None,
-    };
-    if let Some((truth, truth_scene)) = truth {
-        let (c, seen) = umbra::fit::metrics::chamfer_seen(&report.mesh, &truth, &truth_scene, 4000);
-        let all = umbra::fit::metrics::chamfer(&report.mesh, &truth, 4000);
+    if let Some(c) = &summary.chamfer {
         println!(
             "umbra fit: Chamfer distance between the surfaces seen from the wall ({:.0} % of the fit's area, {:.0} % of the truth's) {:.2} mm (fit->truth {:.2} mm, truth->fit {:.2} mm); between the whole surfaces {:.2} mm",
-            100.0 * seen[0],
-            100.0 * seen[1],
-            1e3 * c.symmetric,
-            1e3 * c.fit_to_truth,
-            1e3 * c.truth_to_fit,
-            1e3 * all.symmetric,
+            100.0 * c.fit_seen_area_fraction,
+            100.0 * c.truth_seen_area_fraction,
+            c.seen_mm,
+            c.seen_fit_to_truth_mm,
+            c.seen_truth_to_fit_mm,
+            c.whole_mm,
         );
-        summary.chamfer = Some(ChamferSummary {
-            seen_mm: 1e3 * c.symmetric,
-            seen_fit_to_truth_mm: 1e3 * c.fit_to_truth,
-            seen_truth_to_fit_mm: 1e3 * c.truth_to_fit,
-            seen_fit_to_truth_p90_mm: 1e3 * c.fit_to_truth_p90,
-            seen_truth_to_fit_p90_mm: 1e3 * c.truth_to_fit_p90,
-            fit_seen_area_fraction: seen[0],
-            truth_seen_area_fraction: seen[1],
-            whole_mm: 1e3 * all.symmetric,
-        });
     }
-    let path = args.output.join("summary.toml");
-    let text = toml::to_string(&summary).map_err(|e| Error::Invalid(format!("summary: {e}")))?;
-    optim::checkpoint::write_atomic(&path, text.as_bytes()).map_err(|e| Error::io(&path, e))?;
     Ok(())
-}
-
-/// The relative L2 error that Poisson noise alone gives, `√(Σ Var M / Σ M²)` over the
-/// fitted bins (OPL from `ignore_before_opl` on), for a measurement of photon counts
-/// whose `scan x scan` blocks were averaged (`Var M = M / scan²`).
-fn photon_noise_floor(
-    scene: &Scene,
-    measured: &[f32],
-    scan: u32,
-    ignore_before_opl: Option<f32>,
-) -> f64 {
-    let bins = scene.film.temporal_bins as usize;
-    let first = umbra::fit::objective::first_fitted_bin(scene, ignore_before_opl);
-    let (mut var, mut energy) = (0.0f64, 0.0f64);
-    for (i, &m) in measured.iter().enumerate() {
-        if i % bins.max(1) >= first {
-            var += m as f64 / (scan as f64).powi(2);
-            energy += (m as f64).powi(2);
-        }
-    }
-    if energy > 0.0 {
-        (var / energy).sqrt()
-    } else {
-        f64::NAN
-    }
-}
-
-/// `OUTDIR/summary.toml`: the fit's figures, for scripts (the recovery studies).
-#[derive(serde::Serialize)]
-struct Summary {
-    iterations: usize,
-    seconds: f64,
-    final_loss: f64,
-    relative_l2: f64,
-    scale: f64,
-    background: f64,
-    /// Fitted time offset (OPL, m; 0 unless --time-offset).
-    time_offset: f64,
-    vertices: usize,
-    faces: usize,
-    rejected_steps: u64,
-    init: String,
-    /// For photon-count data: the relative L2 Poisson noise alone gives (the best a
-    /// fit can reach at this resolution).
-    photon_noise_floor: Option<f64>,
-    chamfer: Option<ChamferSummary>,
-}
-
-/// Chamfer distances to the truth (mm); "seen" = the truth's surface seen from the scan
-/// (`umbra::fit::metrics::chamfer_seen`).
-#[derive(serde::Serialize)]
-struct ChamferSummary {
-    seen_mm: f64,
-    seen_fit_to_truth_mm: f64,
-    seen_truth_to_fit_mm: f64,
-    seen_fit_to_truth_p90_mm: f64,
-    seen_truth_to_fit_p90_mm: f64,
-    fit_seen_area_fraction: f64,
-    truth_seen_area_fraction: f64,
-    whole_mm: f64,
 }

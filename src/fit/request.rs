@@ -1,0 +1,517 @@
+//! A fit as `umbra fit` and Python's `umbra.fit` ask for it: the measurement (a file, an
+//! array, or a demonstration target rendered from the scene), the choices a user makes
+//! (initial mesh, schedule, model, detector response, intensity model, binning) with
+//! their defaults, resolved into a [`FitConfig`] and run through [`super::fit`], then
+//! measured against the truth when there is one. Both front ends call [`run`]: there is
+//! one fitting path.
+
+use super::metrics::{chamfer, chamfer_seen};
+use super::objective::first_fitted_bin;
+use super::resolution::{at_resolution, ScanReduce};
+use super::run::{default_schedule, fit, FitConfig, FitReport, Init};
+use super::{Background, IntensityModel};
+use crate::error::{Error, Result};
+use crate::film::irf::Irf;
+use crate::geometry::SceneGeometry;
+use crate::scene::{Model, Reflectance, Scene};
+use crate::transport::{RenderOptions, Renderer};
+use optim::checkpoint::write_atomic;
+use optim::fit::Progress;
+use optim::{Mesh, Schedule};
+use std::path::{Path, PathBuf};
+
+/// What the fit is against.
+#[derive(Clone, Debug)]
+pub enum Measurement {
+    /// No measurement: a target rendered from the scene's hidden objects with the `path`
+    /// model at this many samples per measurement (written as `target.npy`), fitted from
+    /// the initial mesh and compared with the truth.
+    Demo { target_spp: u32 },
+    /// A file: `.npy` (the scene's output layout), y-tal `.hdf5`, or a Stanford LCT
+    /// `.mat` (whose capture geometry replaces the scene's).
+    File(PathBuf),
+    /// An array in the scene's output layout (row-major).
+    Array(Vec<f32>),
+}
+
+/// Who asks: error messages name the options as that front end spells them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Front {
+    /// `--time-offset`.
+    #[default]
+    Cli,
+    /// `time_offset`.
+    Python,
+}
+
+impl Front {
+    /// Option `name` (snake case) as this front end spells it.
+    pub fn name(self, name: &str) -> String {
+        match self {
+            Front::Cli => format!("--{}", name.replace('_', "-")),
+            Front::Python => name.to_string(),
+        }
+    }
+}
+
+/// A fit's choices; `None` means the default for the measurement (see each field).
+#[derive(Clone, Debug)]
+pub struct FitRequest {
+    /// How errors name the options.
+    pub front: Front,
+    pub measurement: Measurement,
+    /// Output directory: mesh.obj, mesh_all.obj, loss.csv, loss.png, transients.png,
+    /// reconstruction.png, summary.toml, checkpoint/.
+    pub output: PathBuf,
+    /// plane, sphere, scene (the scene's hidden objects) or backprojection.
+    pub init: String,
+    /// The stages (default [`default_schedule`]).
+    pub schedule: Option<Schedule>,
+    /// Total iterations, shared among the stages in the schedule's proportions.
+    pub iters: Option<u64>,
+    pub resume: bool,
+    /// tri3, mc3 or path: the stages' model unless they name one.
+    pub model: String,
+    pub spp: u32,
+    /// The measurement has Umbra's absolute scale: no intensity scale is fitted.
+    pub known_scale: bool,
+    /// Default: none for the demonstration, per-bin for LCT captures, else constant.
+    pub background: Option<Background>,
+    /// Detector jitter σ (OPL, m); default 0.
+    pub jitter: Option<f64>,
+    /// none, direct, or a `.npy` file of taps; default direct for LCT captures, else none.
+    pub irf: Option<String>,
+    /// Search an unknown time offset within ± this (OPL, m).
+    pub time_offset: Option<f64>,
+    /// lambertian or retroreflective; default the scene's first hidden object's.
+    pub reflectance: Option<String>,
+    /// Leave OPLs below this (m) out; default 0.72 m for LCT captures.
+    pub ignore_before: Option<f32>,
+    /// With a measurement: the scene's hidden objects are the truth (Chamfer reported).
+    pub truth: bool,
+    /// `(time, scan)` binning of the measurement; default (8, 2) for LCT, else (1, 1).
+    pub bin: Option<(u32, u32)>,
+}
+
+impl FitRequest {
+    /// The defaults of `umbra fit` for `measurement`, writing into `output`.
+    pub fn new(measurement: Measurement, output: PathBuf) -> FitRequest {
+        FitRequest {
+            front: Front::Cli,
+            measurement,
+            output,
+            init: "plane".into(),
+            schedule: None,
+            iters: None,
+            resume: false,
+            model: "tri3".into(),
+            spp: 16,
+            known_scale: false,
+            background: None,
+            jitter: None,
+            irf: None,
+            time_offset: None,
+            reflectance: None,
+            ignore_before: None,
+            truth: false,
+            bin: None,
+        }
+    }
+}
+
+/// A schedule from TOML text (`[[stage]]` tables); `origin` names it in errors.
+pub fn parse_schedule(text: &str, origin: &Path) -> Result<Schedule> {
+    let s: Schedule = toml::from_str(text)
+        .map_err(|e| Error::scene(origin, format!("not a fit schedule: {e}")))?;
+    if s.stages.is_empty() {
+        return Err(Error::scene(origin, "the schedule has no [[stage]]"));
+    }
+    Ok(s)
+}
+
+/// Chamfer distances to the truth (mm); "seen" = the truth's surface seen from the
+/// scan ([`chamfer_seen`]).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ChamferSummary {
+    pub seen_mm: f64,
+    pub seen_fit_to_truth_mm: f64,
+    pub seen_truth_to_fit_mm: f64,
+    pub seen_fit_to_truth_p90_mm: f64,
+    pub seen_truth_to_fit_p90_mm: f64,
+    pub fit_seen_area_fraction: f64,
+    pub truth_seen_area_fraction: f64,
+    pub whole_mm: f64,
+}
+
+/// `OUTDIR/summary.toml`: the fit's figures, for scripts (the recovery studies).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Summary {
+    pub iterations: usize,
+    pub seconds: f64,
+    pub final_loss: f64,
+    pub relative_l2: f64,
+    pub scale: f64,
+    pub background: f64,
+    /// Fitted time offset (OPL, m; 0 unless searched).
+    pub time_offset: f64,
+    pub vertices: usize,
+    pub faces: usize,
+    pub rejected_steps: u64,
+    pub init: String,
+    /// For photon-count data: the relative L2 Poisson noise alone gives (the best a
+    /// fit can reach at this resolution).
+    pub photon_noise_floor: Option<f64>,
+    pub chamfer: Option<ChamferSummary>,
+}
+
+/// What [`run`] returns.
+pub struct FitOutcome {
+    pub report: FitReport,
+    pub summary: Summary,
+    /// The measurement as fitted (after binning, leading bins zeroed) and the shape of it
+    /// and of `report.render`.
+    pub measured: Vec<f32>,
+    pub shape: Vec<usize>,
+}
+
+fn to_mesh(scene: &Scene, what: &str) -> Result<Mesh> {
+    let mut m = Mesh::default();
+    for o in &scene.objects {
+        let part = super::fit_mesh(&o.mesh);
+        let base = m.vertices.len() as u32;
+        m.vertices.extend(part.vertices);
+        m.faces
+            .extend(part.faces.iter().map(|t| t.map(|i| i + base)));
+    }
+    if m.faces.is_empty() {
+        return Err(Error::Invalid(format!(
+            "{what}: the scene has no hidden mesh"
+        )));
+    }
+    Ok(m)
+}
+
+/// The demonstration target: the scene's hidden objects through the `path` model.
+fn render_target(scene: &Scene, spp: u32, out: &Path) -> Result<Vec<f32>> {
+    let geom = SceneGeometry::build(scene);
+    let opts = RenderOptions {
+        model: Model::Path,
+        spp,
+        ..RenderOptions::from_scene(scene)
+    };
+    let t = Renderer::new(scene, &geom, &opts)?.render(None)?;
+    crate::io::write_npy(&out.join("target.npy"), &t)?;
+    Ok(t.data)
+}
+
+/// The detector response of `choice` (none, direct, or a `.npy` of taps).
+fn detector_response(
+    n: &dyn Fn(&str) -> String,
+    choice: &str,
+    scene: &Scene,
+    measured: &[f32],
+    ignore_before_opl: Option<f32>,
+    log: &mut dyn FnMut(&str),
+) -> Result<Option<Irf>> {
+    let width = scene.film.bin_width_opl as f64;
+    Ok(match choice {
+        "none" => None,
+        "direct" => {
+            let first = first_fitted_bin(scene, ignore_before_opl);
+            if first == 0 {
+                return Err(Error::Invalid(format!(
+                    "{} direct: the direct return is the bins before {} OPL, and none are left out",
+                    n("irf"),
+                    n("ignore_before")
+                )));
+            }
+            let bins = scene.film.temporal_bins as usize;
+            let irf = Irf::from_direct_return(measured, bins, first, width).ok_or_else(|| {
+                Error::Invalid(format!(
+                    "{} direct: the measurement's leading bins hold nothing above its floor",
+                    n("irf")
+                ))
+            })?;
+            log(&format!(
+                "detector response from the direct return: {} bins of {:.2} mm, {:.0} % of it beyond 24 mm",
+                irf.taps.len(),
+                1e3 * width,
+                100.0 * irf.taps_at(0.024).iter().skip(1).sum::<f64>()
+            ));
+            Some(irf)
+        }
+        file => {
+            let t = crate::io::read_npy(Path::new(file))?;
+            let total: f64 = t.data.iter().map(|&v| v as f64).sum();
+            if t.shape.len() != 1
+                || t.data.iter().any(|v| !v.is_finite() || *v < 0.0)
+                || total <= 0.0
+            {
+                return Err(Error::Invalid(format!(
+                    "{} {file}: expected a 1-D array of non-negative taps (shape {:?})",
+                    n("irf"),
+                    t.shape
+                )));
+            }
+            Some(Irf {
+                bin_width: width,
+                taps: t.data.iter().map(|&v| v as f64 / total).collect(),
+            })
+        }
+    })
+}
+
+/// Runs the fit `req` asks for on `scene`: prepares the measurement, resolves the
+/// defaults, fits ([`super::fit`], which writes the outputs), compares with the truth
+/// when there is one, and writes `summary.toml`. `log` receives one-line notes on the
+/// choices made; `progress` is called after every iteration (false stops the fit with
+/// [`Error::Cancelled`], the checkpoint kept).
+pub fn run(
+    scene: Scene,
+    req: &FitRequest,
+    progress: Progress,
+    log: &mut dyn FnMut(&str),
+) -> Result<FitOutcome> {
+    let n = |name: &str| req.front.name(name);
+    let mut schedule = req.schedule.clone().unwrap_or_else(default_schedule);
+    if schedule.stages.is_empty() {
+        return Err(Error::Invalid("the schedule has no stage".into()));
+    }
+    if let Some(total) = req.iters {
+        let old: u64 = schedule.stages.iter().map(|s| s.iters).sum::<u64>().max(1);
+        for s in &mut schedule.stages {
+            s.iters = (s.iters * total).div_ceil(old).max(1);
+        }
+    }
+    let model = Model::parse(&req.model)
+        .filter(|m| *m != Model::Auto)
+        .ok_or_else(|| {
+            Error::Invalid(format!(
+                "{}: '{}' is not one of tri3, mc3, path",
+                n("model"),
+                req.model
+            ))
+        })?;
+    std::fs::create_dir_all(&req.output).map_err(|e| Error::io(&req.output, e))?;
+    let file = match &req.measurement {
+        Measurement::File(p) => Some(p.as_path()),
+        _ => None,
+    };
+    let truth_of = |s: &Scene| -> Result<Option<(Mesh, Scene)>> {
+        Ok(Some((to_mesh(s, "truth")?, s.clone())))
+    };
+    let (scene, measured, truth) = match &req.measurement {
+        Measurement::File(path) => {
+            let m = crate::io::measured::read_measured(path)?;
+            let truth = if req.truth { truth_of(&scene)? } else { None };
+            let fitted = m.scene_for(&scene)?;
+            m.check_against(&fitted)?;
+            (fitted, m.transient.data, truth)
+        }
+        Measurement::Array(data) => {
+            let truth = if req.truth { truth_of(&scene)? } else { None };
+            (scene, data.clone(), truth)
+        }
+        Measurement::Demo { target_spp } => {
+            let truth = truth_of(&scene)?;
+            log(&format!(
+                "no measurement: rendering the scene's hidden objects ({} triangles) with the path model at {target_spp} spp as the target",
+                truth.as_ref().map_or(0, |t| t.0.faces.len()),
+            ));
+            let data = render_target(&scene, *target_spp, &req.output)?;
+            (scene, data, truth)
+        }
+    };
+    let demo = matches!(req.measurement, Measurement::Demo { .. });
+    let is_lct = file.is_some_and(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("mat")));
+    let lct_default = is_lct.then_some(600.0 * crate::io::lct::LCT_BIN_OPL);
+    let bin = req.bin.unwrap_or(if is_lct { (8, 2) } else { (1, 1) });
+    if bin.0 == 0 || bin.1 == 0 {
+        return Err(Error::Invalid(format!(
+            "{}: {},{} is not TIME,SCAN (two integers >= 1)",
+            n("bin"),
+            bin.0,
+            bin.1
+        )));
+    }
+    let counts = !demo && measured.iter().all(|&v| v >= 0.0 && v.fract() == 0.0);
+    let (scene, measured) = if bin == (1, 1) {
+        (scene, measured)
+    } else {
+        let (mut binned, data) =
+            at_resolution(&scene, &measured, bin.0, bin.1, ScanReduce::Average)
+                .map_err(|e| Error::Invalid(format!("{} {},{}: {e}", n("bin"), bin.0, bin.1)))?;
+        binned.objects = scene.objects.clone();
+        log(&format!(
+            "measurement binned {},{}: {} x {} scan points, {} bins of {:.2} mm",
+            bin.0,
+            bin.1,
+            binned.scan.nx,
+            binned.scan.ny,
+            binned.film.temporal_bins,
+            1e3 * binned.film.bin_width_opl
+        ));
+        (binned, data)
+    };
+    let ignore_before_opl = req.ignore_before.or(lct_default);
+    let noise_floor =
+        counts.then(|| photon_noise_floor(&scene, &measured, bin.1, ignore_before_opl));
+    let init = match req.init.as_str() {
+        "plane" => Init::Plane,
+        "sphere" => Init::Sphere,
+        "scene" => Init::Mesh(to_mesh(&scene, &format!("{} scene", n("init")))?),
+        "backprojection" => Init::Backprojection,
+        other => {
+            return Err(Error::Invalid(format!(
+                "{}: '{other}' is not one of plane, sphere, scene, backprojection",
+                n("init")
+            )))
+        }
+    };
+    let reflectance = match &req.reflectance {
+        None => scene
+            .objects
+            .first()
+            .map_or(Default::default(), |o| o.reflectance),
+        Some(r) => Reflectance::parse(r).ok_or_else(|| {
+            Error::Invalid(format!(
+                "{}: '{r}' is not one of lambertian, retroreflective",
+                n("reflectance")
+            ))
+        })?,
+    };
+    let irf_choice = req
+        .irf
+        .clone()
+        .unwrap_or_else(|| if is_lct { "direct" } else { "none" }.into());
+    if irf_choice != "none" && req.jitter.is_some() {
+        let (jitter, irf) = (n("jitter"), n("irf"));
+        return Err(Error::Invalid(if req.irf.is_some() {
+            format!("{jitter} and {irf} both give the detector's response: give one")
+        } else {
+            format!("{jitter} and {irf} both give the detector's response: LCT captures use {irf} direct by default, add {irf} none for the Gaussian")
+        }));
+    }
+    let irf = detector_response(&n, &irf_choice, &scene, &measured, ignore_before_opl, log)?;
+    let jitter_opl = req.jitter.unwrap_or(0.0);
+    if irf.is_some() && req.time_offset.is_some() {
+        return Err(Error::Invalid(format!(
+            "{} shifts the {} Gaussian: use it with {} none",
+            n("time_offset"),
+            n("jitter"),
+            n("irf")
+        )));
+    }
+    if !(jitter_opl.is_finite() && jitter_opl >= 0.0) {
+        return Err(Error::Invalid(format!(
+            "{}: {jitter_opl} is not a standard deviation (OPL, m, >= 0)",
+            n("jitter")
+        )));
+    }
+    let time_offset_max_opl = req.time_offset.unwrap_or(0.0);
+    if !(time_offset_max_opl.is_finite() && time_offset_max_opl >= 0.0) {
+        return Err(Error::Invalid(format!(
+            "{}: {time_offset_max_opl} is not a search range (OPL, m, >= 0)",
+            n("time_offset")
+        )));
+    }
+    if time_offset_max_opl > 0.0 && jitter_opl <= 0.0 {
+        return Err(Error::Invalid(format!(
+            "{} needs {} SIGMA > 0: with box bins the loss is piecewise constant in the offset (no gradient to find it by)",
+            n("time_offset"),
+            n("jitter")
+        )));
+    }
+    let background = req.background.unwrap_or(if demo {
+        Background::None
+    } else if is_lct {
+        Background::PerBin
+    } else {
+        Background::Constant
+    });
+    let cfg = FitConfig {
+        schedule,
+        init,
+        model,
+        spp: req.spp.max(1),
+        intensity: IntensityModel {
+            scale: !req.known_scale,
+            background,
+        },
+        two_sided: true,
+        albedo: scene.objects.first().map_or(0.8, |o| o.albedo),
+        resume: req.resume,
+        ignore_before_opl,
+        jitter_opl,
+        irf,
+        time_offset_max_opl,
+        reflectance,
+    };
+    let report = fit(&scene, &measured, &cfg, &req.output, progress)?;
+    let mut summary = Summary {
+        iterations: report.history.len(),
+        seconds: report.seconds,
+        final_loss: report.final_loss,
+        relative_l2: report.final_loss.sqrt(),
+        scale: report.intensity.scale,
+        background: report.intensity.background,
+        time_offset: report.time_offset_opl,
+        vertices: report.mesh.vertices.len(),
+        faces: report.mesh.faces.len(),
+        rejected_steps: report.rejected_steps,
+        init: req.init.clone(),
+        photon_noise_floor: noise_floor,
+        chamfer: None,
+    };
+    if let Some((truth, truth_scene)) = truth {
+        let (c, seen) = chamfer_seen(&report.mesh, &truth, &truth_scene, 4000);
+        let all = chamfer(&report.mesh, &truth, 4000);
+        summary.chamfer = Some(ChamferSummary {
+            seen_mm: 1e3 * c.symmetric,
+            seen_fit_to_truth_mm: 1e3 * c.fit_to_truth,
+            seen_truth_to_fit_mm: 1e3 * c.truth_to_fit,
+            seen_fit_to_truth_p90_mm: 1e3 * c.fit_to_truth_p90,
+            seen_truth_to_fit_p90_mm: 1e3 * c.truth_to_fit_p90,
+            fit_seen_area_fraction: seen[0],
+            truth_seen_area_fraction: seen[1],
+            whole_mm: 1e3 * all.symmetric,
+        });
+    }
+    let path = req.output.join("summary.toml");
+    let text = toml::to_string(&summary).map_err(|e| Error::Invalid(format!("summary: {e}")))?;
+    write_atomic(&path, text.as_bytes()).map_err(|e| Error::io(&path, e))?;
+    let mut measured = measured;
+    let first = first_fitted_bin(&scene, ignore_before_opl);
+    super::objective::zero_leading_bins(&mut measured, scene.film.temporal_bins as usize, first);
+    Ok(FitOutcome {
+        report,
+        summary,
+        measured,
+        shape: scene.output_shape(),
+    })
+}
+
+/// The relative L2 error that Poisson noise alone gives, `√(Σ Var M / Σ M²)` over the
+/// fitted bins (OPL from `ignore_before_opl` on), for a measurement of photon counts
+/// whose `scan x scan` blocks were averaged (`Var M = M / scan²`).
+fn photon_noise_floor(
+    scene: &Scene,
+    measured: &[f32],
+    scan: u32,
+    ignore_before_opl: Option<f32>,
+) -> f64 {
+    let bins = scene.film.temporal_bins as usize;
+    let first = first_fitted_bin(scene, ignore_before_opl);
+    let (mut var, mut energy) = (0.0f64, 0.0f64);
+    for (i, &m) in measured.iter().enumerate() {
+        if i % bins.max(1) >= first {
+            var += m as f64 / (scan as f64).powi(2);
+            energy += (m as f64).powi(2);
+        }
+    }
+    if energy > 0.0 {
+        (var / energy).sqrt()
+    } else {
+        f64::NAN
+    }
+}

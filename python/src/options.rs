@@ -1,39 +1,44 @@
 //! The render options of `umbra.render`, `umbra.grad` and `umbra.torch`: keyword
 //! arguments that override the scene's render settings, the same set as the CLI's
-//! `umbra render` flags. [`resolve`] is the one place they are read: one more option is
-//! one more arm of its `match` (and a line in `_umbra.pyi`).
+//! `umbra render` flags. [`resolve`] reads them into the core's
+//! [`umbra::transport::gate::Overrides`], the one place the CLI's flags are checked too,
+//! so Python and the CLI accept and refuse the same values with the same messages; one
+//! more option is one more arm of its `match` (and a line in `_umbra.pyi`).
 //!
-//! Only conversions are checked here (a name that is not a model, a value of the wrong
-//! type); whether a setting suits the scene is the core's to say (`Renderer::new`,
-//! `adjoint::gradient`), and its error reaches Python as `UmbraError`.
+//! Only conversions are checked here (a value of the wrong type); whether a setting
+//! suits the scene is the core's gate to say (`Renderer::new`, `adjoint::gradient`), and
+//! its error reaches Python as `UmbraError`.
 
 use crate::UmbraError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::borrow::Cow;
-use umbra::scene::{Model, Scene, Visibility};
+use umbra::scene::Scene;
+use umbra::transport::gate::Overrides;
 use umbra::transport::RenderOptions;
 
 /// The option names, in the order `umbra render --help` lists them.
 pub const NAMES: &[&str] = &[
     "model",
-    "visibility",
-    "subdivision",
-    "max_error",
     "spp",
     "seed",
-    "threads",
     "max_depth",
     "laser_sampling",
     "hidden_geometry_sampling",
     "bsdf_sampling",
+    "visibility",
+    "subdivision",
+    "max_error",
+    "visible_legs",
+    "threads",
 ];
 
 /// A scene with the options applied, the options as the renderer takes them, and the
 /// worker thread count (None: all cores).
 pub struct Resolved<'a> {
     /// The caller's scene, or a copy when an option lives in the scene itself
-    /// (`max_depth` and the sampling techniques); the copy shares nothing with Python.
+    /// (`max_depth`, the sampling techniques, `visible_legs`); the copy shares nothing
+    /// with Python.
     pub scene: Cow<'a, Scene>,
     pub opts: RenderOptions,
     pub threads: Option<usize>,
@@ -57,9 +62,8 @@ pub fn resolve<'a>(
     scene: &'a Scene,
     options: Option<&Bound<'_, PyDict>>,
 ) -> PyResult<Resolved<'a>> {
-    let mut r = scene.render.clone();
+    let mut o = Overrides::default();
     let mut threads = None;
-    let mut scene_level = false;
     for (key, v) in options.into_iter().flat_map(|d| d.iter()) {
         let key: String = key.extract()?;
         if v.is_none() {
@@ -67,49 +71,18 @@ pub fn resolve<'a>(
         }
         let k = key.as_str();
         match k {
-            "model" => {
-                let m: String = value(k, &v)?;
-                r.model = Model::parse(&m).ok_or_else(|| {
-                    UmbraError::new_err(format!("model: '{m}' is not one of tri3, mc3, path, auto"))
-                })?;
-            }
-            "visibility" => {
-                let name: String = value(k, &v)?;
-                r.visibility = Visibility::parse(&name).ok_or_else(|| {
-                    UmbraError::new_err(format!(
-                        "visibility: '{name}' is not one of none, centroid, subtriangle"
-                    ))
-                })?;
-            }
-            "subdivision" => r.subdivision = value(k, &v)?,
-            "max_error" => r.max_error = value(k, &v)?,
-            "spp" => r.spp = value(k, &v)?,
-            "seed" => r.seed = value(k, &v)?,
+            "model" => o.model = Some(value(k, &v)?),
+            "spp" => o.spp = Some(value(k, &v)?),
+            "seed" => o.seed = Some(value(k, &v)?),
+            "max_depth" => o.max_depth = Some(value(k, &v)?),
+            "laser_sampling" => o.laser_sampling = Some(value(k, &v)?),
+            "hidden_geometry_sampling" => o.hidden_geometry_sampling = Some(value(k, &v)?),
+            "bsdf_sampling" => o.bsdf_sampling = Some(value(k, &v)?),
+            "visibility" => o.visibility = Some(value(k, &v)?),
+            "subdivision" => o.subdivision = Some(value(k, &v)?),
+            "max_error" => o.max_error = Some(value(k, &v)?),
+            "visible_legs" => o.visible_legs = Some(value(k, &v)?),
             "threads" => threads = Some(value::<usize>(k, &v)?),
-            "max_depth" => {
-                r.max_bounces = match value::<i64>(k, &v)? {
-                    -1 => u32::MAX,
-                    d if (3..=u32::MAX as i64 - 1).contains(&d) => d as u32,
-                    d => {
-                        return Err(UmbraError::new_err(format!(
-                            "max_depth: {d} is not -1 (unbounded) or a number of bounces >= 3"
-                        )))
-                    }
-                };
-                scene_level = true;
-            }
-            "laser_sampling" => {
-                r.techniques.laser_sampling = value(k, &v)?;
-                scene_level = true;
-            }
-            "hidden_geometry_sampling" => {
-                r.techniques.hidden_geometry_sampling = value(k, &v)?;
-                scene_level = true;
-            }
-            "bsdf_sampling" => {
-                r.techniques.bsdf_sampling = value(k, &v)?;
-                scene_level = true;
-            }
             other => {
                 return Err(UmbraError::new_err(format!(
                     "unknown option '{other}': the options are {}",
@@ -118,27 +91,21 @@ pub fn resolve<'a>(
             }
         }
     }
-    if scene_level {
+    let mut r = scene.render.clone();
+    let opts = o.apply_to(&mut r).map_err(crate::to_py)?;
+    let same_scene = r.max_bounces == scene.render.max_bounces
+        && r.techniques == scene.render.techniques
+        && r.visible_legs == scene.render.visible_legs;
+    let scene = if same_scene {
+        // Only settings `RenderOptions` carries changed: no copy of the scene.
+        Cow::Borrowed(scene)
+    } else {
         let mut s = scene.clone();
         s.render = r;
-        let opts = RenderOptions::from_scene(&s);
-        return Ok(Resolved {
-            scene: Cow::Owned(s),
-            opts,
-            threads,
-        });
-    }
-    // Only settings `RenderOptions` carries were overridden: no copy of the scene.
-    let opts = RenderOptions {
-        model: r.model,
-        spp: r.spp,
-        seed: r.seed,
-        visibility: r.visibility,
-        subdivision: r.subdivision,
-        max_error: r.max_error,
+        Cow::Owned(s)
     };
     Ok(Resolved {
-        scene: Cow::Borrowed(scene),
+        scene,
         opts,
         threads,
     })

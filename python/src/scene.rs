@@ -100,6 +100,7 @@ impl PyScene {
             r.techniques.hidden_geometry_sampling,
         )?;
         d.set_item("bsdf_sampling", r.techniques.bsdf_sampling)?;
+        d.set_item("visible_legs", r.visible_legs)?;
         Ok(d)
     }
 
@@ -257,7 +258,8 @@ pub fn load_scene(path: &str, defines: Option<Vec<(String, String)>>) -> PyResul
 #[pyo3(signature = (text, base_dir = ".", origin = "<dict>"))]
 pub fn load_scene_xml(text: &str, base_dir: &str, origin: &str) -> PyResult<PyScene> {
     let inner = umbra::scene::mitsuba_xml::parse(text, Path::new(origin), Path::new(base_dir))
-        .map_err(to_py)?;
+        .map_err(to_py)?
+        .with_overlap_warnings();
     Ok(PyScene::new(inner))
 }
 

@@ -51,7 +51,8 @@ def render(scene: Scene, spp: Optional[int] = None, model: Optional[str] = None,
            max_depth: Optional[int] = None, laser_sampling: Optional[bool] = None,
            hidden_geometry_sampling: Optional[bool] = None,
            bsdf_sampling: Optional[bool] = None, visibility: Optional[str] = None,
-           subdivision: Optional[float] = None, max_error: Optional[float] = None) -> np.ndarray:
+           subdivision: Optional[float] = None, max_error: Optional[float] = None,
+           visible_legs: Optional[bool] = None) -> np.ndarray:
     """The scene's transient: a new float32 array in mitransient's layout ``(sy, sx, T)``
     (``(sy, sx, ly, lx, T)`` for exhaustive capture). Same seed, same output, whatever
     the thread count.
@@ -63,12 +64,15 @@ def render(scene: Scene, spp: Optional[int] = None, model: Optional[str] = None,
     ``laser_sampling``, ``hidden_geometry_sampling``, ``bsdf_sampling`` the path
     model's techniques; ``visibility`` (tri3) none | centroid | subtriangle;
     ``subdivision`` (tri3) the sub-triangle threshold; ``max_error`` (auto) the relative
-    error the chosen model may leave."""
+    error the chosen model may leave; ``visible_legs`` test the laser -> laser spot and
+    sensor point -> detector lines for occlusion by hidden objects (default True, as
+    mitransient: a blocked measurement records 0); False when you know they are clear.
+    Render, grad, fit and the CLI refuse the same combinations with the same message."""
     return _render(scene, spp=spp, model=model, seed=seed, threads=threads,
                    max_depth=max_depth, laser_sampling=laser_sampling,
                    hidden_geometry_sampling=hidden_geometry_sampling,
                    bsdf_sampling=bsdf_sampling, visibility=visibility,
-                   subdivision=subdivision, max_error=max_error)
+                   subdivision=subdivision, max_error=max_error, visible_legs=visible_legs)
 
 
 def grad(scene: Scene, adjoint: Optional[npt.ArrayLike] = None, spp: Optional[int] = None,
@@ -77,7 +81,8 @@ def grad(scene: Scene, adjoint: Optional[npt.ArrayLike] = None, spp: Optional[in
          loss: str = "l2", max_depth: Optional[int] = None,
          laser_sampling: Optional[bool] = None, hidden_geometry_sampling: Optional[bool] = None,
          bsdf_sampling: Optional[bool] = None, visibility: Optional[str] = None,
-         subdivision: Optional[float] = None, max_error: Optional[float] = None) -> Dict[str, Any]:
+         subdivision: Optional[float] = None, max_error: Optional[float] = None,
+         visible_legs: Optional[bool] = None) -> Dict[str, Any]:
     """``dLoss/dθ`` for the scene's hidden objects, given either
 
     - ``adjoint = dLoss/dH`` (the render's shape) for a loss of your own, or
@@ -103,7 +108,7 @@ def grad(scene: Scene, adjoint: Optional[npt.ArrayLike] = None, spp: Optional[in
                  threads=threads, max_depth=max_depth, laser_sampling=laser_sampling,
                  hidden_geometry_sampling=hidden_geometry_sampling,
                  bsdf_sampling=bsdf_sampling, visibility=visibility,
-                 subdivision=subdivision, max_error=max_error)
+                 subdivision=subdivision, max_error=max_error, visible_legs=visible_legs)
 
 
 def _schedule_toml(stages: Sequence[Mapping[str, Any]]) -> str:

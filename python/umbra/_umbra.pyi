@@ -85,6 +85,7 @@ def render(
     laser_sampling: Optional[bool] = None,
     hidden_geometry_sampling: Optional[bool] = None,
     bsdf_sampling: Optional[bool] = None,
+    visible_legs: Optional[bool] = None,
 ) -> npt.NDArray[np.float32]:
     """The scene's transient (float32, mitransient's layout); options left at None take
     the scene's value."""
@@ -106,6 +107,7 @@ def grad(
     laser_sampling: Optional[bool] = None,
     hidden_geometry_sampling: Optional[bool] = None,
     bsdf_sampling: Optional[bool] = None,
+    visible_legs: Optional[bool] = None,
 ) -> Dict[str, Any]:
     """``dLoss/dθ`` for ``adjoint`` (dLoss/dH) or for ``loss`` ("l2" or
     "l2-normalized") against ``target``: a dict with ``vertices`` (list of ``(V_k, 3)``

@@ -22,7 +22,7 @@
 
 use super::RenderOptions;
 use crate::error::{Error, Result};
-use crate::scene::{CaptureType, Model, Reflectance, Scene, Visibility};
+use crate::scene::{CaptureType, Model, Reflectance, RenderSettings, Scene, Visibility};
 
 /// Which pass the scene is checked for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -136,8 +136,13 @@ impl Overrides {
     /// Writes the overrides into `scene.render` (each value checked, the message naming
     /// the option) and returns the render options that follow.
     pub fn apply(&self, scene: &mut Scene) -> Result<RenderOptions> {
+        self.apply_to(&mut scene.render)
+    }
+
+    /// [`Overrides::apply`] on render settings alone (a caller that copies the scene only
+    /// when a setting outside [`RenderOptions`] changed).
+    pub fn apply_to(&self, r: &mut RenderSettings) -> Result<RenderOptions> {
         let bad = |msg: String| Err(Error::Invalid(msg));
-        let r = &mut scene.render;
         if let Some(m) = &self.model {
             r.model = match Model::parse(m) {
                 Some(m) => m,
@@ -192,6 +197,6 @@ impl Overrides {
             r.max_error = e;
         }
         r.visible_legs = self.visible_legs.unwrap_or(r.visible_legs);
-        Ok(RenderOptions::from_scene(scene))
+        Ok(RenderOptions::from_settings(r))
     }
 }

@@ -30,7 +30,10 @@ pub struct RenderOptions {
 
 impl RenderOptions {
     pub fn from_scene(scene: &Scene) -> Self {
-        let r = &scene.render;
+        Self::from_settings(&scene.render)
+    }
+
+    pub fn from_settings(r: &crate::scene::RenderSettings) -> Self {
         RenderOptions {
             model: r.model,
             spp: r.spp,

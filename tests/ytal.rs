@@ -13,6 +13,8 @@ use umbra::io::ytal::{read_ytal, write_ytal};
 use umbra::scene::{default::default_scene, CaptureType, ScanGrid, Scene};
 use umbra::transport::Transient;
 
+use rust_hdf5::H5File;
+
 fn lscene() -> PathBuf {
     let p = shared_dir("UMBRA_YTAL_DIR", "ytal").join("lscene.hdf5");
     assert!(
@@ -56,7 +58,7 @@ fn reads_the_capture_ytal_wrote() {
     );
 
     // Layout: Umbra (sy, sx, T) is y-tal's H (T, Sx, Sy) transposed.
-    let h: Vec<f32> = hdf5::File::open(&path)
+    let h: Vec<f32> = H5File::open(&path)
         .unwrap()
         .dataset("H")
         .unwrap()
@@ -191,7 +193,7 @@ fn exhaustive_h_is_t_lx_ly_sx_sy() {
     let (scene, t) = small(CaptureType::Exhaustive);
     let path = dir.join("e.h5");
     umbra::io::write_capture(&path, &t, &scene).unwrap();
-    let f = hdf5::File::open(&path).unwrap();
+    let f = H5File::open(&path).unwrap();
     let ds = f.dataset("H").unwrap();
     assert_eq!(ds.shape(), vec![7, 3, 2, 3, 2]);
     let h: Vec<f32> = ds.read_raw().unwrap();
@@ -208,6 +210,13 @@ fn exhaustive_h_is_t_lx_ly_sx_sy() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// Opens `path` for writing, lets `change` edit it, and closes it.
+fn edit(path: &std::path::Path, change: impl FnOnce(&H5File)) {
+    let f = H5File::open_rw(path).unwrap();
+    change(&f);
+    f.close().unwrap();
+}
+
 fn message(r: umbra::Result<Measured>) -> String {
     match r {
         Ok(_) => panic!("a bad file was accepted"),
@@ -222,12 +231,14 @@ fn bad_files_name_the_file_and_the_dataset() {
 
     let no_h = dir.join("no_h.hdf5");
     {
-        let f = hdf5::File::create(&no_h).unwrap();
+        let f = H5File::create(&no_h).unwrap();
         f.new_dataset::<f64>()
+            .scalar()
             .create("delta_t")
             .unwrap()
-            .write_scalar(&0.01)
+            .write_raw(&[0.01])
             .unwrap();
+        f.close().unwrap();
     }
     let e = message(read_ytal(&no_h));
     assert!(
@@ -237,14 +248,15 @@ fn bad_files_name_the_file_and_the_dataset() {
 
     let wrong_format = dir.join("wrong_format.hdf5");
     write_ytal(&wrong_format, &t, &scene).unwrap();
-    {
-        let f = hdf5::File::open_rw(&wrong_format).unwrap();
-        f.unlink("H_format").unwrap();
-        f.new_dataset_builder()
-            .with_data(&[3i32][..])
+    edit(&wrong_format, |f| {
+        f.delete_dataset("H_format").unwrap();
+        f.new_dataset::<i32>()
+            .shape([1])
             .create("H_format")
+            .unwrap()
+            .write_raw(&[3])
             .unwrap();
-    }
+    });
     let e = message(read_ytal(&wrong_format));
     assert!(
         e.contains("wrong_format.hdf5") && e.contains("H_format") && e.contains("T_Si"),
@@ -253,13 +265,17 @@ fn bad_files_name_the_file_and_the_dataset() {
 
     let irregular = dir.join("irregular.hdf5");
     write_ytal(&irregular, &t, &scene).unwrap();
-    {
-        let f = hdf5::File::open_rw(&irregular).unwrap();
-        let ds = f.dataset("sensor_grid_xyz").unwrap();
-        let mut g: Vec<f32> = ds.read_raw().unwrap();
-        g[3] += 0.05; // point [0, 1] moves 5 cm along x
+    let mut g: Vec<f32> = H5File::open(&irregular)
+        .unwrap()
+        .dataset("sensor_grid_xyz")
+        .unwrap()
+        .read_raw()
+        .unwrap();
+    g[3] += 0.05; // point [0, 1] moves 5 cm along x
+    edit(&irregular, |f| {
+        let ds = f.dataset_writer("sensor_grid_xyz").unwrap();
         ds.write_raw(&g).unwrap();
-    }
+    });
     let e = message(read_ytal(&irregular));
     assert!(
         e.contains("irregular.hdf5") && e.contains("sensor_grid_xyz") && e.contains("regular"),
@@ -268,15 +284,15 @@ fn bad_files_name_the_file_and_the_dataset() {
 
     let mismatched = dir.join("mismatched.hdf5");
     write_ytal(&mismatched, &t, &scene).unwrap();
-    {
-        let f = hdf5::File::open_rw(&mismatched).unwrap();
-        f.unlink("laser_grid_xyz").unwrap();
-        let l = ndarray::Array3::<f32>::zeros((2, 2, 3));
-        f.new_dataset_builder()
-            .with_data(&l)
+    edit(&mismatched, |f| {
+        f.delete_dataset("laser_grid_xyz").unwrap();
+        f.new_dataset::<f32>()
+            .shape([2, 2, 3])
             .create("laser_grid_xyz")
+            .unwrap()
+            .write_raw(&[0.0f32; 12])
             .unwrap();
-    }
+    });
     let e = message(read_ytal(&mismatched));
     assert!(e.contains("laser_grid_xyz") && e.contains("neither"), "{e}");
 

@@ -10,6 +10,50 @@ pub(super) fn field_err(path: &Path, name: &str, e: impl std::fmt::Display) -> E
     Error::field(path, name, e.to_string())
 }
 
+/// libhdf5 refuses a file shorter than the end-of-file address its superblock records (a
+/// truncated copy); rust-hdf5 reads whatever datasets are still whole, so we check it
+/// here. The superblock sits at 0 or after a user block of 512 * 2^k bytes.
+pub(super) fn check_not_truncated(path: &Path) -> Result<()> {
+    use std::io::{Read, Seek, SeekFrom};
+    const SIGNATURE: &[u8; 8] = b"\x89HDF\r\n\x1a\n";
+    let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let len = f.metadata().map_err(|e| Error::io(path, e))?.len();
+    let mut at = 0u64;
+    while at + 64 <= len {
+        let mut head = [0u8; 64];
+        f.seek(SeekFrom::Start(at))
+            .and_then(|_| f.read_exact(&mut head))
+            .map_err(|e| Error::io(path, e))?;
+        if &head[..8] == SIGNATURE {
+            // Offsets of sizeof(offsets) and of the base address, per superblock version.
+            let (size_at, base_at) = match head[8] {
+                0 => (13, 24),
+                1 => (13, 28),
+                _ => (9, 12),
+            };
+            let o = usize::from(head[size_at]);
+            let addr = |i: usize| -> Option<u64> {
+                let b = head.get(base_at + i * o..base_at + (i + 1) * o)?;
+                let mut buf = [0u8; 8];
+                buf.get_mut(..b.len())?.copy_from_slice(b);
+                Some(u64::from_le_bytes(buf)).filter(|_| b.iter().any(|&x| x != 0xff))
+            };
+            if let (Some(base), Some(eof)) = (addr(0), addr(2)) {
+                let need = base.saturating_add(eof);
+                if need > len {
+                    return Err(Error::scene(
+                        path,
+                        format!("truncated HDF5 file: its superblock records {need} bytes, the file has {len}"),
+                    ));
+                }
+            }
+            return Ok(());
+        }
+        at = if at == 0 { 512 } else { at * 2 };
+    }
+    Ok(())
+}
+
 /// The root dataset `name`, or `None` if the file has no such dataset.
 pub(super) fn dataset(path: &Path, file: &H5File, name: &str) -> Result<Option<H5Dataset>> {
     if !file.dataset_names().iter().any(|n| n == name) {

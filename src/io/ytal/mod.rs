@@ -151,6 +151,7 @@ pub fn read_ytal(path: &Path) -> Result<Measured> {
     if !path.is_file() {
         return Err(Error::scene(path, "no such file"));
     }
+    fields::check_not_truncated(path)?;
     let file =
         H5File::open(path).map_err(|e| Error::scene(path, format!("not an HDF5 file: {e}")))?;
     let h = fields::dataset(path, &file, "H")?.ok_or_else(|| {

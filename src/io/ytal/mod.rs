@@ -13,12 +13,27 @@
 //! | `delta_t`, `t_start` | bin width and start, m of OPL (float64 scalars) | `bin_width_opl`, `start_opl` |
 //! | `t_accounts_first_and_last_bounces` | HDF5 bool (enum int8 FALSE/TRUE) | the same flag |
 //! | `volume_format` | deprecated; `tal render` writes an empty (null) float64 | written the same way |
-//! | `scene_info` | YAML text | written: who made the file and the capture |
+//! | `scene_info` | YAML text (vlen UTF-8 string) | written: who made the file and the capture; as a `(1,)` array, see below |
 //!
 //! y-tal marks a confocal capture by `H_format = T_Sx_Sy` with `laser_grid_xyz` equal to
 //! `sensor_grid_xyz` (its `is_confocal()` is `np.allclose` of the two), a single capture by a
 //! one-point laser grid. Its reader refuses any root dataset it does not know, so we write
 //! exactly its fields ([`write`]). Files are written to a temporary name and renamed into place.
+//! Enum fields are read by member name, as libhdf5 converts enums; a plain integer is taken
+//! as the code. A file shorter than its superblock says is refused as truncated.
+//!
+//! ## Which crate and why
+//!
+//! HDF5 goes through [`rust_hdf5`] (pure Rust, default features off: no dependencies, no
+//! system library), so a fresh machine builds the CLI and the Python wheel without Debian's
+//! `libhdf5-dev`, which `hdf5-metno` linked. Of the pure-Rust crates it is the one that
+//! reads and writes every kind of field above with y-tal's types: float32 arrays, float64
+//! scalars, int32 enums with y-tal's member names (built by hand as a `DatatypeMessage`),
+//! h5py's int8 bool enum, the NULL dataspace of `volume_format`, vlen strings. One
+//! difference from h5py: its vlen string datasets are one-dimensional, so `scene_info` is a
+//! `(1,)` array where `tal render` writes a scalar; y-tal squeezes it to the same string.
+//! `hdf5-pure` 0.47 cannot write a NULL dataspace (y-tal's reader then fails on
+//! `volume_format`). The evaluation is in `notes/hdf5-crates.md`.
 
 use super::measured::Measured;
 use crate::error::{Error, Result};

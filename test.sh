@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Sets up everything the tests need on a fresh machine, then runs all of them:
-#   1. Debian packages: LLVM 19 for Dr.Jit's CPU backend (mitransient's llvm_ad_mono),
-#      libhdf5-dev for y-tal's HDF5 captures;
+#   1. Debian packages: LLVM 19 for Dr.Jit's CPU backend (mitransient's llvm_ad_mono)
+#      (Umbra itself needs no system library: its HDF5 is pure Rust, rust-hdf5);
 #   2. a Python venv in .venv with the peers (python/requirements-test.txt);
 #   3. cargo test --release (Rust unit, integration and fuzz tests);
 #   4. the `umbra` Python package (python/, maturin) into .venv, and PyTorch unless
@@ -11,11 +11,12 @@
 set -euo pipefail
 cd "$(dirname "$0")"
 
-# Debian packages: LLVM 19 for Dr.Jit; HDF5 for y-tal's capture format (hdf5-metno).
-if ! ls /usr/lib/x86_64-linux-gnu/libLLVM.so.19* >/dev/null 2>&1 || ! dpkg -s libhdf5-dev >/dev/null 2>&1; then
-    echo "== installing libllvm19 and libhdf5-dev (apt)"
+# Debian packages: LLVM 19 for Dr.Jit (the peers' CPU backend). y-tal's HDF5 captures need
+# none: Umbra reads and writes them with rust-hdf5 (pure Rust), h5py brings its own libhdf5.
+if ! ls /usr/lib/x86_64-linux-gnu/libLLVM.so.19* >/dev/null 2>&1; then
+    echo "== installing libllvm19 (apt)"
     SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
-    $SUDO apt-get update -qq && $SUDO apt-get install -y -qq libllvm19 libhdf5-dev pkg-config
+    $SUDO apt-get update -qq && $SUDO apt-get install -y -qq libllvm19
 fi
 export DRJIT_LIBLLVM_PATH="${DRJIT_LIBLLVM_PATH:-$(ls /usr/lib/x86_64-linux-gnu/libLLVM.so.19* | head -n1)}"
 

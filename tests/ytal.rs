@@ -13,6 +13,8 @@ use umbra::io::ytal::{read_ytal, write_ytal};
 use umbra::scene::{default::default_scene, CaptureType, ScanGrid, Scene};
 use umbra::transport::Transient;
 
+use rust_hdf5::H5File;
+
 fn lscene() -> PathBuf {
     let p = shared_dir("UMBRA_YTAL_DIR", "ytal").join("lscene.hdf5");
     assert!(
@@ -56,7 +58,7 @@ fn reads_the_capture_ytal_wrote() {
     );
 
     // Layout: Umbra (sy, sx, T) is y-tal's H (T, Sx, Sy) transposed.
-    let h: Vec<f32> = hdf5::File::open(&path)
+    let h: Vec<f32> = H5File::open(&path)
         .unwrap()
         .dataset("H")
         .unwrap()
@@ -191,7 +193,7 @@ fn exhaustive_h_is_t_lx_ly_sx_sy() {
     let (scene, t) = small(CaptureType::Exhaustive);
     let path = dir.join("e.h5");
     umbra::io::write_capture(&path, &t, &scene).unwrap();
-    let f = hdf5::File::open(&path).unwrap();
+    let f = H5File::open(&path).unwrap();
     let ds = f.dataset("H").unwrap();
     assert_eq!(ds.shape(), vec![7, 3, 2, 3, 2]);
     let h: Vec<f32> = ds.read_raw().unwrap();
@@ -205,6 +207,121 @@ fn exhaustive_h_is_t_lx_ly_sx_sy() {
     // [x, y] indexing: element [2, 0] is scan point ix = 2, iy = 0.
     let p = scene.scan.point(2);
     assert_eq!(&g[(2 * ny) * 3..(2 * ny) * 3 + 3], &p.to_array());
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Opens `path` for writing, lets `change` edit it, and closes it.
+fn edit(path: &std::path::Path, change: impl FnOnce(&H5File)) {
+    let f = H5File::open_rw(path).unwrap();
+    change(&f);
+    f.close().unwrap();
+}
+
+/// A dataset's type as far as h5py and y-tal see it: the class, and for an enum its base
+/// and its (name, value) members in name order.
+fn kind(f: &H5File, name: &str) -> String {
+    use rust_hdf5::DatatypeMessage as T;
+    let ds = f.dataset(name).unwrap();
+    let space = if ds.is_null() {
+        "null".to_string()
+    } else {
+        format!("{}-d", ds.ndims())
+    };
+    let t = match ds.datatype().unwrap() {
+        T::Enum { base, members } => {
+            let mut m: Vec<_> = members.iter().map(|m| (&m.name, &m.value)).collect();
+            m.sort();
+            format!("enum {base} {m:?}")
+        }
+        T::FloatingPoint { size, .. } => format!("float{}", size * 8),
+        T::FixedPoint { .. } => "integer".to_string(),
+        other => other.to_string(),
+    };
+    format!("{t}, {space}")
+}
+
+#[test]
+fn written_fields_have_the_types_ytal_writes() {
+    // y-tal's own file is the reference: the same datasets, enums with the same members,
+    // h5py's bool, the NULL volume_format and a vlen string scene_info.
+    let ytal = H5File::open(lscene()).unwrap();
+    let dir = tmp_dir("types");
+    let (scene, t) = small(CaptureType::Single);
+    let path = dir.join("single.hdf5");
+    write_ytal(&path, &t, &scene).unwrap();
+    let ours = H5File::open(&path).unwrap();
+    let mut names = ytal.dataset_names();
+    names.sort();
+    let mut our_names = ours.dataset_names();
+    our_names.sort();
+    assert_eq!(our_names, names);
+    for name in &names {
+        let (want, got) = (kind(&ytal, name), kind(&ours, name));
+        match name.as_str() {
+            // y-tal's render stored its normals as integers; Umbra's are float32.
+            "laser_grid_normals" | "sensor_grid_normals" => assert_eq!(got, "float32, 3-d"),
+            // h5py writes a scalar string, rust-hdf5 a (1,) array of one (y-tal squeezes it).
+            "scene_info" => {
+                assert!(
+                    want.starts_with("vlen_string") && want.ends_with("0-d"),
+                    "{want}"
+                );
+                assert_eq!(got, want.replace("0-d", "1-d"));
+            }
+            _ => assert_eq!(got, want, "{name}"),
+        }
+    }
+    let info = ours
+        .dataset("scene_info")
+        .unwrap()
+        .read_vlen_strings()
+        .unwrap();
+    assert!(
+        info.len() == 1 && info[0].starts_with("generator: umbra"),
+        "{info:?}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn truncated_or_garbled_files_are_errors_naming_the_file() {
+    let dir = tmp_dir("garbled");
+    let (scene, t) = small(CaptureType::Confocal);
+    let good = dir.join("good.hdf5");
+    write_ytal(&good, &t, &scene).unwrap();
+    let bytes = std::fs::read(&good).unwrap();
+    let bad = dir.join("bad.hdf5");
+    let mut rejected = 0;
+    for k in 0..16 {
+        std::fs::write(&bad, &bytes[..bytes.len() * k / 16]).unwrap();
+        let e = message(read_ytal(&bad));
+        assert!(e.contains("bad.hdf5"), "{e}");
+        rejected += 1;
+    }
+    // y-tal's file (h5py, superblock version 0) one byte short.
+    let ytal = std::fs::read(lscene()).unwrap();
+    std::fs::write(&bad, &ytal[..ytal.len() - 1]).unwrap();
+    let e = message(read_ytal(&bad));
+    assert!(e.contains("bad.hdf5") && e.contains("truncated"), "{e}");
+    // Flip bytes through the metadata (a panic here fails the test); a flip the reader
+    // cannot see may still read, anything else must be an error naming the file.
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    for _ in 0..200 {
+        let mut b = bytes.clone();
+        for _ in 0..3 {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1);
+            let i = (state >> 33) as usize % b.len().min(4096);
+            b[i] ^= (state >> 17) as u8 | 1;
+        }
+        std::fs::write(&bad, &b).unwrap();
+        if let Err(e) = read_ytal(&bad) {
+            assert!(e.to_string().contains("bad.hdf5"), "{e}");
+            rejected += 1;
+        }
+    }
+    assert!(rejected > 16, "no garbled file was refused");
     std::fs::remove_dir_all(&dir).ok();
 }
 
@@ -222,12 +339,14 @@ fn bad_files_name_the_file_and_the_dataset() {
 
     let no_h = dir.join("no_h.hdf5");
     {
-        let f = hdf5::File::create(&no_h).unwrap();
+        let f = H5File::create(&no_h).unwrap();
         f.new_dataset::<f64>()
+            .scalar()
             .create("delta_t")
             .unwrap()
-            .write_scalar(&0.01)
+            .write_raw(&[0.01])
             .unwrap();
+        f.close().unwrap();
     }
     let e = message(read_ytal(&no_h));
     assert!(
@@ -237,14 +356,15 @@ fn bad_files_name_the_file_and_the_dataset() {
 
     let wrong_format = dir.join("wrong_format.hdf5");
     write_ytal(&wrong_format, &t, &scene).unwrap();
-    {
-        let f = hdf5::File::open_rw(&wrong_format).unwrap();
-        f.unlink("H_format").unwrap();
-        f.new_dataset_builder()
-            .with_data(&[3i32][..])
+    edit(&wrong_format, |f| {
+        f.delete_dataset("H_format").unwrap();
+        f.new_dataset::<i32>()
+            .shape([1])
             .create("H_format")
+            .unwrap()
+            .write_raw(&[3])
             .unwrap();
-    }
+    });
     let e = message(read_ytal(&wrong_format));
     assert!(
         e.contains("wrong_format.hdf5") && e.contains("H_format") && e.contains("T_Si"),
@@ -253,13 +373,17 @@ fn bad_files_name_the_file_and_the_dataset() {
 
     let irregular = dir.join("irregular.hdf5");
     write_ytal(&irregular, &t, &scene).unwrap();
-    {
-        let f = hdf5::File::open_rw(&irregular).unwrap();
-        let ds = f.dataset("sensor_grid_xyz").unwrap();
-        let mut g: Vec<f32> = ds.read_raw().unwrap();
-        g[3] += 0.05; // point [0, 1] moves 5 cm along x
+    let mut g: Vec<f32> = H5File::open(&irregular)
+        .unwrap()
+        .dataset("sensor_grid_xyz")
+        .unwrap()
+        .read_raw()
+        .unwrap();
+    g[3] += 0.05; // point [0, 1] moves 5 cm along x
+    edit(&irregular, |f| {
+        let ds = f.dataset_writer("sensor_grid_xyz").unwrap();
         ds.write_raw(&g).unwrap();
-    }
+    });
     let e = message(read_ytal(&irregular));
     assert!(
         e.contains("irregular.hdf5") && e.contains("sensor_grid_xyz") && e.contains("regular"),
@@ -268,15 +392,15 @@ fn bad_files_name_the_file_and_the_dataset() {
 
     let mismatched = dir.join("mismatched.hdf5");
     write_ytal(&mismatched, &t, &scene).unwrap();
-    {
-        let f = hdf5::File::open_rw(&mismatched).unwrap();
-        f.unlink("laser_grid_xyz").unwrap();
-        let l = ndarray::Array3::<f32>::zeros((2, 2, 3));
-        f.new_dataset_builder()
-            .with_data(&l)
+    edit(&mismatched, |f| {
+        f.delete_dataset("laser_grid_xyz").unwrap();
+        f.new_dataset::<f32>()
+            .shape([2, 2, 3])
             .create("laser_grid_xyz")
+            .unwrap()
+            .write_raw(&[0.0f32; 12])
             .unwrap();
-    }
+    });
     let e = message(read_ytal(&mismatched));
     assert!(e.contains("laser_grid_xyz") && e.contains("neither"), "{e}");
 

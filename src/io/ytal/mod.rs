@@ -13,211 +13,50 @@
 //! | `delta_t`, `t_start` | bin width and start, m of OPL (float64 scalars) | `bin_width_opl`, `start_opl` |
 //! | `t_accounts_first_and_last_bounces` | HDF5 bool (enum int8 FALSE/TRUE) | the same flag |
 //! | `volume_format` | deprecated; `tal render` writes an empty (null) float64 | written the same way |
-//! | `scene_info` | YAML text | written: who made the file and the capture |
+//! | `scene_info` | YAML text (vlen UTF-8 string) | written: who made the file and the capture; as a `(1,)` array, see below |
 //!
 //! y-tal marks a confocal capture by `H_format = T_Sx_Sy` with `laser_grid_xyz` equal to
 //! `sensor_grid_xyz` (its `is_confocal()` is `np.allclose` of the two), a single capture by a
 //! one-point laser grid. Its reader refuses any root dataset it does not know, so we write
 //! exactly its fields ([`write`]). Files are written to a temporary name and renamed into place.
+//! Enum fields are read by member name, as libhdf5 converts enums; a plain integer is taken
+//! as the code. A file shorter than its superblock says is refused as truncated.
+//!
+//! ## Which crate and why
+//!
+//! HDF5 goes through [`rust_hdf5`] (pure Rust, default features off: no dependencies, no
+//! system library), so a fresh machine builds the CLI and the Python wheel without Debian's
+//! `libhdf5-dev`, which `hdf5-metno` linked. Of the pure-Rust crates it is the one that
+//! reads and writes every kind of field above with y-tal's types: float32 arrays, float64
+//! scalars, int32 enums with y-tal's member names (built by hand as a `DatatypeMessage`),
+//! h5py's int8 bool enum, the NULL dataspace of `volume_format`, vlen strings. One
+//! difference from h5py: its vlen string datasets are one-dimensional, so `scene_info` is a
+//! `(1,)` array where `tal render` writes a scalar; y-tal squeezes it to the same string.
+//! `hdf5-pure` 0.47 cannot write a NULL dataspace (y-tal's reader then fails on
+//! `volume_format`). The evaluation is in `notes/hdf5-crates.md`.
 
 use super::measured::Measured;
 use crate::error::{Error, Result};
 use crate::scene::{CaptureType, ScanGrid};
 use crate::transport::Transient;
-use glam::{DVec3, Vec3};
-use hdf5::types::TypeDescriptor;
-use hdf5::{Dataset, Extents, H5Type};
+use fields::{field_err, read_bool, read_code, read_point, read_points, read_scalar};
+use glam::DVec3;
+use rust_hdf5::H5File;
 use std::path::Path;
 
+mod fields;
 mod write;
 pub use write::write_ytal;
 
-/// y-tal's `HFormat` (`tal.enums`), same names and values. HDF5 converts enums by member
-/// name, so every member must be here even if we never write it.
-#[derive(H5Type, Clone, Copy, Debug, PartialEq, Eq)]
-#[repr(i32)]
-#[allow(non_camel_case_types, clippy::upper_case_acronyms, dead_code)]
-enum HFormat {
-    UNKNOWN = 0,
-    T_Sx_Sy = 1,
-    T_Lx_Ly_Sx_Sy = 2,
-    T_Si = 3,
-    T_Li_Si = 4,
-}
+/// y-tal's `HFormat` (`tal.enums`): member names, indexed by value. HDF5 converts enums by
+/// member name, so every member is here even if we never write it.
+const H_FORMAT: [&str; 5] = ["UNKNOWN", "T_Sx_Sy", "T_Lx_Ly_Sx_Sy", "T_Si", "T_Li_Si"];
+const T_SX_SY: usize = 1;
+const T_LX_LY_SX_SY: usize = 2;
 
 /// y-tal's `GridFormat`.
-#[derive(H5Type, Clone, Copy, Debug, PartialEq, Eq)]
-#[repr(i32)]
-#[allow(non_camel_case_types, clippy::upper_case_acronyms, dead_code)]
-enum GridFormat {
-    UNKNOWN = 0,
-    N_3 = 1,
-    X_Y_3 = 2,
-}
-
-const H_FORMAT_NAMES: [&str; 5] = ["UNKNOWN", "T_Sx_Sy", "T_Lx_Ly_Sx_Sy", "T_Si", "T_Li_Si"];
-
-fn field_err(path: &Path, name: &str, e: impl std::fmt::Display) -> Error {
-    Error::field(path, name, e.to_string())
-}
-
-fn dataset(path: &Path, file: &hdf5::File, name: &str) -> Result<Option<Dataset>> {
-    if !file.link_exists(name) {
-        return Ok(None);
-    }
-    file.dataset(name)
-        .map(Some)
-        .map_err(|e| field_err(path, name, e))
-}
-
-fn is_null(ds: &Dataset) -> bool {
-    matches!(ds.space().and_then(|s| s.extents()), Ok(Extents::Null))
-}
-
-/// The one value of an enum (or plain integer) dataset; `E` lists y-tal's members.
-fn read_code<E: H5Type + Copy>(
-    path: &Path,
-    file: &hdf5::File,
-    name: &str,
-    code: fn(E) -> i64,
-) -> Result<Option<i64>> {
-    let Some(ds) = dataset(path, file, name)? else {
-        return Ok(None);
-    };
-    if is_null(&ds) {
-        return Ok(None);
-    }
-    let err = |e: hdf5::Error| field_err(path, name, e);
-    let desc = ds.dtype().and_then(|t| t.to_descriptor()).map_err(err)?;
-    let values: Vec<i64> = match desc {
-        TypeDescriptor::Integer(_) | TypeDescriptor::Unsigned(_) => {
-            ds.read_raw::<i64>().map_err(err)?
-        }
-        TypeDescriptor::Enum(_) => ds
-            .read_raw::<E>()
-            .map_err(err)?
-            .into_iter()
-            .map(code)
-            .collect(),
-        other => {
-            return Err(field_err(
-                path,
-                name,
-                format!("has type {other}, expected y-tal's enum"),
-            ))
-        }
-    };
-    match values.as_slice() {
-        [v] => Ok(Some(*v)),
-        _ => Err(field_err(
-            path,
-            name,
-            format!("holds {} values, expected one", values.len()),
-        )),
-    }
-}
-
-/// A dataset's numbers as `f64`; `None` if absent or empty.
-fn read_numbers(path: &Path, file: &hdf5::File, name: &str) -> Result<Option<Vec<f64>>> {
-    let Some(ds) = dataset(path, file, name)? else {
-        return Ok(None);
-    };
-    if is_null(&ds) {
-        return Ok(None);
-    }
-    ds.read_raw::<f64>()
-        .map(Some)
-        .map_err(|e| field_err(path, name, e))
-}
-
-/// A float scalar (or one-element array); `None` if absent or empty.
-fn read_scalar(path: &Path, file: &hdf5::File, name: &str) -> Result<Option<f64>> {
-    let Some(v) = read_numbers(path, file, name)? else {
-        return Ok(None);
-    };
-    match v.as_slice() {
-        [x] if x.is_finite() => Ok(Some(*x)),
-        [x] => Err(field_err(path, name, format!("must be finite, got {x}"))),
-        _ => Err(field_err(
-            path,
-            name,
-            format!("holds {} values, expected one number", v.len()),
-        )),
-    }
-}
-
-fn read_bool(path: &Path, file: &hdf5::File, name: &str) -> Result<Option<bool>> {
-    let Some(ds) = dataset(path, file, name)? else {
-        return Ok(None);
-    };
-    if is_null(&ds) {
-        return Ok(None);
-    }
-    let err = |e: hdf5::Error| field_err(path, name, e);
-    let desc = ds.dtype().and_then(|t| t.to_descriptor()).map_err(err)?;
-    let v: Vec<bool> = match desc {
-        TypeDescriptor::Integer(_) | TypeDescriptor::Unsigned(_) => ds
-            .read_raw::<i64>()
-            .map_err(err)?
-            .iter()
-            .map(|&x| x != 0)
-            .collect(),
-        _ => ds.read_raw::<bool>().map_err(err)?,
-    };
-    match v.as_slice() {
-        [b] => Ok(Some(*b)),
-        _ => Err(field_err(
-            path,
-            name,
-            format!("holds {} values, expected one", v.len()),
-        )),
-    }
-}
-
-/// A point stored as three numbers (`laser_xyz`, `sensor_xyz`); `None` if absent or
-/// empty.
-fn read_point(path: &Path, file: &hdf5::File, name: &str) -> Result<Option<Vec3>> {
-    let Some(v) = read_numbers(path, file, name)? else {
-        return Ok(None);
-    };
-    match v.as_slice() {
-        [x, y, z] if v.iter().all(|c| c.is_finite()) => {
-            Ok(Some(Vec3::new(*x as f32, *y as f32, *z as f32)))
-        }
-        [_, _, _] => Err(field_err(path, name, "holds a non-finite coordinate")),
-        _ => Err(field_err(
-            path,
-            name,
-            format!("holds {} values, expected a point (x, y, z)", v.len()),
-        )),
-    }
-}
-
-/// Wall points of a grid dataset: its shape without the trailing 3, and the points in
-/// C order.
-fn read_points(path: &Path, file: &hdf5::File, name: &str) -> Result<(Vec<usize>, Vec<DVec3>)> {
-    let ds = dataset(path, file, name)?.ok_or_else(|| {
-        field_err(
-            path,
-            name,
-            "missing: a y-tal capture stores its wall points here",
-        )
-    })?;
-    let shape = ds.shape();
-    if shape.last() != Some(&3) {
-        return Err(field_err(
-            path,
-            name,
-            format!("has shape {shape:?}, expected (x, y, 3)"),
-        ));
-    }
-    let v = ds.read_raw::<f64>().map_err(|e| field_err(path, name, e))?;
-    if v.iter().any(|x| !x.is_finite()) {
-        return Err(field_err(path, name, "holds a non-finite coordinate"));
-    }
-    let pts = v.chunks_exact(3).map(DVec3::from_slice).collect();
-    Ok((shape[..shape.len() - 1].to_vec(), pts))
-}
+const GRID_FORMAT: [&str; 3] = ["UNKNOWN", "N_3", "X_Y_3"];
+const X_Y_3: usize = 2;
 
 /// The regular grid through `pts` (indexed `[ix * ny + iy]`, pixel-centre convention), or an
 /// error naming the dataset if the points are not evenly spaced on a parallelogram. An axis
@@ -327,29 +166,31 @@ pub fn read_ytal(path: &Path) -> Result<Measured> {
     if !path.is_file() {
         return Err(Error::scene(path, "no such file"));
     }
+    fields::check_not_truncated(path)?;
     let file =
-        hdf5::File::open(path).map_err(|e| Error::scene(path, format!("not an HDF5 file: {e}")))?;
-    let h = dataset(path, &file, "H")?.ok_or_else(|| {
+        H5File::open(path).map_err(|e| Error::scene(path, format!("not an HDF5 file: {e}")))?;
+    let h = fields::dataset(path, &file, "H")?.ok_or_else(|| {
         field_err(
             path,
             "H",
             "missing: a y-tal capture (NLOSCaptureData) stores its transient in H",
         )
     })?;
-    let format = read_code::<HFormat>(path, &file, "H_format", |f| f as i64)?.ok_or_else(|| {
+    let format = read_code(path, &file, "H_format", "HFormat", &H_FORMAT)?.ok_or_else(|| {
         field_err(
             path,
             "H_format",
             "missing (y-tal writes T_Sx_Sy = 1 or T_Lx_Ly_Sx_Sy = 2)",
         )
     })?;
-    let exhaustive = match format {
-        1 => false,
-        2 => true,
-        v => {
+    let exhaustive = match usize::try_from(format) {
+        Ok(T_SX_SY) => false,
+        Ok(T_LX_LY_SX_SY) => true,
+        _ => {
+            let v = format;
             let name = usize::try_from(v)
                 .ok()
-                .and_then(|i| H_FORMAT_NAMES.get(i))
+                .and_then(|i| H_FORMAT.get(i))
                 .map_or(format!("{v} is not a y-tal HFormat"), |n| {
                     format!("{n} ({v})")
                 });
@@ -361,14 +202,15 @@ pub fn read_ytal(path: &Path) -> Result<Measured> {
         }
     };
     for grid in ["sensor_grid_format", "laser_grid_format"] {
-        let code = read_code::<GridFormat>(path, &file, grid, |f| f as i64)?;
-        if code.is_some_and(|c| c != GridFormat::X_Y_3 as i64) {
+        let code = read_code(path, &file, grid, "GridFormat", &GRID_FORMAT)?;
+        if let Some(c) = code.filter(|&c| c != X_Y_3 as i64) {
+            let name = usize::try_from(c).ok().and_then(|i| GRID_FORMAT.get(i));
             return Err(field_err(
                 path,
                 grid,
                 format!(
-                    "{} is not supported: Umbra reads X_Y_3 (2) grids",
-                    code.unwrap_or(0)
+                    "{} ({c}) is not supported: Umbra reads X_Y_3 (2) grids",
+                    name.unwrap_or(&"not a y-tal GridFormat")
                 ),
             ));
         }
@@ -385,7 +227,7 @@ pub fn read_ytal(path: &Path) -> Result<Measured> {
             "H",
             format!(
                 "has shape {shape:?}, but H_format {} means {layout}",
-                H_FORMAT_NAMES[format as usize]
+                H_FORMAT[format as usize]
             ),
         ));
     }
@@ -430,7 +272,14 @@ pub fn read_ytal(path: &Path) -> Result<Measured> {
             format!("has {laser_shape:?} points: neither one point (single capture) nor the sensor grid (confocal)"),
         ));
     };
-    let data = h.read_raw::<f32>().map_err(|e| field_err(path, "H", e))?;
+    let data = fields::read_f32s(path, &h, "H")?;
+    if data.len() != shape.iter().product::<usize>() {
+        return Err(field_err(
+            path,
+            "H",
+            format!("holds {} values for shape {shape:?}", data.len()),
+        ));
+    }
     if let Some(i) = data.iter().position(|v| !v.is_finite()) {
         return Err(field_err(
             path,

@@ -1,18 +1,17 @@
 //! Writing y-tal's HDF5 captures (`umbra render -o X.hdf5`): the layout and fields of
 //! the module above, so y-tal's reconstructions run on Umbra's renders.
 
-use super::{permute, GridFormat, HFormat, TO_YTAL_3, TO_YTAL_5};
+use super::{permute, GRID_FORMAT, H_FORMAT, TO_YTAL_3, TO_YTAL_5, T_LX_LY_SX_SY, T_SX_SY, X_Y_3};
 use crate::error::{Error, Result};
 use crate::scene::{CaptureType, ScanGrid, Scene};
 use crate::transport::Transient;
 use glam::Vec3;
-use hdf5::types::VarLenUnicode;
-use hdf5::Extents;
-use ndarray::{ArrayD, IxDyn};
+use rust_hdf5::format::messages::datatype::EnumMember;
+use rust_hdf5::{DatatypeMessage, H5File};
 use std::path::Path;
 
-/// Grid points as y-tal stores them: `(nx, ny, 3)` indexed `[x, y]`.
-fn grid_array(g: &ScanGrid) -> ArrayD<f32> {
+/// Grid points as y-tal stores them: `(nx, ny, 3)` indexed `[x, y]`, in C order.
+fn grid_points(g: &ScanGrid) -> Vec<f32> {
     let (nx, ny) = (g.nx as usize, g.ny as usize);
     let mut v = Vec::with_capacity(nx * ny * 3);
     for ix in 0..nx {
@@ -20,12 +19,25 @@ fn grid_array(g: &ScanGrid) -> ArrayD<f32> {
             v.extend_from_slice(&g.point(iy * nx + ix).to_array());
         }
     }
-    ArrayD::from_shape_vec(IxDyn(&[nx, ny, 3]), v).expect("grid shape")
+    v
 }
 
-fn normals(n: Vec3, nx: usize, ny: usize) -> ArrayD<f32> {
-    let v = (0..nx * ny).flat_map(|_| n.to_array()).collect();
-    ArrayD::from_shape_vec(IxDyn(&[nx, ny, 3]), v).expect("normals shape")
+fn normals(n: Vec3, count: usize) -> Vec<f32> {
+    (0..count).flat_map(|_| n.to_array()).collect()
+}
+
+/// An HDF5 enum over `base` whose member `names[i]` has the value `i` (`width` bytes,
+/// little-endian), as `h5py.enum_dtype` writes y-tal's enums and h5py's bool.
+fn enum_type(base: DatatypeMessage, width: usize, names: &[&str]) -> DatatypeMessage {
+    let members = names
+        .iter()
+        .enumerate()
+        .map(|(i, n)| EnumMember {
+            name: (*n).to_string(),
+            value: (i as u64).to_le_bytes()[..width].to_vec(),
+        })
+        .collect();
+    DatatypeMessage::enumeration(base, members)
 }
 
 /// A short YAML `scene_info` (y-tal parses it with `yaml.load`).
@@ -77,81 +89,79 @@ fn decimal(v: f32) -> f64 {
     v.to_string().parse().unwrap_or(v as f64)
 }
 
-fn write_file(tmp: &Path, t: &Transient, scene: &Scene) -> hdf5::Result<()> {
+/// A failed HDF5 call, named after the dataset it was writing.
+fn at(name: &str) -> impl Fn(rust_hdf5::Hdf5Error) -> String + '_ {
+    move |e| format!("{name}: {e}")
+}
+
+fn write_file(tmp: &Path, t: &Transient, scene: &Scene) -> std::result::Result<(), String> {
     let exhaustive = scene.capture == CaptureType::Exhaustive;
     let (h, h_shape) = if exhaustive {
         permute(&t.data, &t.shape, &TO_YTAL_5)
     } else {
         permute(&t.data, &t.shape, &TO_YTAL_3)
     };
-    let h = ArrayD::from_shape_vec(IxDyn(&h_shape), h).expect("H shape");
     let (nx, ny) = (scene.scan.nx as usize, scene.scan.ny as usize);
     let n_w = scene.wall.normal();
-    let sensor = grid_array(&scene.scan);
-    let (laser, laser_normals) = match scene.capture {
-        CaptureType::Single => (
-            ArrayD::from_shape_vec(IxDyn(&[1, 1, 3]), scene.laser.target.to_array().to_vec())
-                .expect("laser shape"),
-            normals(n_w, 1, 1),
-        ),
-        CaptureType::Confocal | CaptureType::Exhaustive => (sensor.clone(), normals(n_w, nx, ny)),
+    let sensor = grid_points(&scene.scan);
+    let (laser, laser_shape) = match scene.capture {
+        CaptureType::Single => (scene.laser.target.to_array().to_vec(), [1, 1, 3]),
+        CaptureType::Confocal | CaptureType::Exhaustive => (sensor.clone(), [nx, ny, 3]),
     };
-    let h_format = if exhaustive {
-        HFormat::T_Lx_Ly_Sx_Sy
-    } else {
-        HFormat::T_Sx_Sy
-    };
+    let h_format = if exhaustive { T_LX_LY_SX_SY } else { T_SX_SY };
 
-    let file = hdf5::File::create(tmp)?;
-    {
-        let data = |name: &str, a: &ArrayD<f32>| -> hdf5::Result<()> {
-            file.new_dataset_builder()
-                .with_data(a.view())
-                .create(name)
-                .map(|_| ())
-        };
-        data("H", &h)?;
-        file.new_dataset_builder()
-            .with_data(&[h_format][..])
-            .create("H_format")?;
-        data(
-            "sensor_xyz",
-            &ArrayD::from_shape_vec(IxDyn(&[3]), scene.detector.origin.to_array().to_vec())
-                .expect("3"),
-        )?;
-        data("sensor_grid_xyz", &sensor)?;
-        data("sensor_grid_normals", &normals(n_w, nx, ny))?;
-        file.new_dataset_builder()
-            .with_data(&[GridFormat::X_Y_3][..])
-            .create("sensor_grid_format")?;
-        data(
-            "laser_xyz",
-            &ArrayD::from_shape_vec(IxDyn(&[3]), scene.laser.origin.to_array().to_vec())
-                .expect("3"),
-        )?;
-        data("laser_grid_xyz", &laser)?;
-        data("laser_grid_normals", &laser_normals)?;
-        file.new_dataset_builder()
-            .with_data(&[GridFormat::X_Y_3][..])
-            .create("laser_grid_format")?;
+    let file = H5File::create(tmp).map_err(|e| e.to_string())?;
+    let data = |name: &str, shape: &[usize], v: &[f32]| {
+        file.new_dataset::<f32>()
+            .shape(shape)
+            .create(name)
+            .and_then(|ds| ds.write_raw(v))
+            .map_err(at(name))
+    };
+    let code = |name: &str, names: &[&str], value: usize| {
+        file.new_dataset::<i32>()
+            .datatype(enum_type(DatatypeMessage::i32_type(), 4, names))
+            .shape([1])
+            .create(name)
+            .and_then(|ds| ds.write_raw(&[value as i32]))
+            .map_err(at(name))
+    };
+    let scalar = |name: &str, v: f64| {
         file.new_dataset::<f64>()
-            .shape(Extents::Null)
-            .create("volume_format")?;
-        file.new_dataset::<f64>()
-            .create("delta_t")?
-            .write_scalar(&decimal(scene.film.bin_width_opl))?;
-        file.new_dataset::<f64>()
-            .create("t_start")?
-            .write_scalar(&decimal(scene.film.start_opl))?;
-        file.new_dataset::<bool>()
-            .create("t_accounts_first_and_last_bounces")?
-            .write_scalar(&scene.account_first_and_last_bounces)?;
-        let info: VarLenUnicode = scene_info(scene)
-            .parse()
-            .map_err(|e| hdf5::Error::from(format!("scene_info: {e}")))?;
-        file.new_dataset::<VarLenUnicode>()
-            .create("scene_info")?
-            .write_scalar(&info)?;
-    }
-    file.close()
+            .scalar()
+            .create(name)
+            .and_then(|ds| ds.write_raw(&[v]))
+            .map_err(at(name))
+    };
+    data("H", &h_shape, &h)?;
+    code("H_format", &H_FORMAT, h_format)?;
+    data("sensor_xyz", &[3], &scene.detector.origin.to_array())?;
+    data("sensor_grid_xyz", &[nx, ny, 3], &sensor)?;
+    data("sensor_grid_normals", &[nx, ny, 3], &normals(n_w, nx * ny))?;
+    code("sensor_grid_format", &GRID_FORMAT, X_Y_3)?;
+    data("laser_xyz", &[3], &scene.laser.origin.to_array())?;
+    data("laser_grid_xyz", &laser_shape, &laser)?;
+    let laser_normals = normals(n_w, laser_shape[0] * laser_shape[1]);
+    data("laser_grid_normals", &laser_shape, &laser_normals)?;
+    code("laser_grid_format", &GRID_FORMAT, X_Y_3)?;
+    // `tal render` writes None as h5py.Empty(float): the NULL dataspace.
+    file.new_dataset::<f64>()
+        .null()
+        .create("volume_format")
+        .map_err(at("volume_format"))?;
+    scalar("delta_t", decimal(scene.film.bin_width_opl))?;
+    scalar("t_start", decimal(scene.film.start_opl))?;
+    // h5py's bool: an int8 enum FALSE = 0, TRUE = 1.
+    let flag = "t_accounts_first_and_last_bounces";
+    file.new_dataset::<i8>()
+        .datatype(enum_type(DatatypeMessage::i8_type(), 1, &["FALSE", "TRUE"]))
+        .scalar()
+        .create(flag)
+        .and_then(|ds| ds.write_raw(&[i8::from(scene.account_first_and_last_bounces)]))
+        .map_err(at(flag))?;
+    // rust-hdf5 writes a variable-length string dataset with one dimension: (1,) where h5py
+    // writes a scalar; y-tal squeezes it to the same string.
+    file.write_vlen_strings("scene_info", &[&scene_info(scene)])
+        .map_err(at("scene_info"))?;
+    file.close().map_err(|e| e.to_string())
 }

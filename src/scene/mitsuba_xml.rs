@@ -23,8 +23,10 @@
 //! - Depths: see [`mitransient_depth_to_bounces`].
 
 mod params;
+mod resolve;
 mod shapes;
 mod tree;
+mod ytal;
 pub mod write;
 
 #[cfg(test)]
@@ -37,6 +39,7 @@ use super::{
 use crate::error::{Error, Result};
 use glam::{Mat3, Mat4, Vec3};
 use params::{Cx, Plugin};
+use resolve::Resolver;
 use shapes::{shape, Shape, WallCfg};
 use std::collections::HashMap;
 use std::path::Path;
@@ -46,20 +49,29 @@ use tree::Node;
 /// reports for a default projector).
 const DEFAULT_PROJECTOR_FOV: f32 = 34.0221;
 
-/// Reads a Mitsuba XML scene; relative OBJ filenames resolve against its folder.
+/// Reads a Mitsuba XML scene; relative OBJ filenames resolve as Mitsuba resolves them
+/// (the XML's folder, then the current working directory: [`resolve`]).
 pub fn load(path: &Path) -> Result<Scene> {
     load_with_defines(path, &[])
 }
 
-/// [`load`] with `$name` values set from outside (Mitsuba's `-D name=value`).
+/// [`load`] with `$name` values set from outside (Mitsuba's `-D name=value`; y-tal's
+/// `laser_lookat_x/y` aim the laser, see [`ytal`]).
 pub fn load_with_defines(path: &Path, defines: &[(String, String)]) -> Result<Scene> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
-    parse_with_defines(&text, path, &base, defines)
+    let cwd = std::env::current_dir().ok();
+    load_in(path, defines, cwd.as_deref())
 }
 
-/// Parses Mitsuba XML text. `origin` names it in messages; `base_dir` resolves relative
-/// OBJ filenames.
+/// [`load_with_defines`] as if run in the folder `cwd` (`None`: search only next to
+/// the XML).
+pub fn load_in(path: &Path, defines: &[(String, String)], cwd: Option<&Path>) -> Result<Scene> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    build(&text, path, Resolver::new(&base, cwd), defines)
+}
+
+/// Parses Mitsuba XML text. `origin` names it in messages; relative OBJ filenames are
+/// looked for in `base_dir`, then in the current working directory.
 pub fn parse(text: &str, origin: &Path, base_dir: &Path) -> Result<Scene> {
     parse_with_defines(text, origin, base_dir, &[])
 }
@@ -71,7 +83,19 @@ pub fn parse_with_defines(
     base_dir: &Path,
     defines: &[(String, String)],
 ) -> Result<Scene> {
-    let root = tree::parse(text, origin, defines)?;
+    let cwd = std::env::current_dir().ok();
+    build(text, origin, Resolver::new(base_dir, cwd.as_deref()), defines)
+}
+
+fn build(
+    text: &str,
+    origin: &Path,
+    mut files: Resolver,
+    defines: &[(String, String)],
+) -> Result<Scene> {
+    let parsed = tree::parse(text, origin, defines)?;
+    let aim = ytal::split_defines(&parsed, origin, defines)?;
+    let root = &parsed.root;
     let mut cx = Cx {
         origin,
         warnings: Vec::new(),
@@ -88,6 +112,7 @@ pub fn parse_with_defines(
     if let Some(a) = root.attrs.iter().find(|a| a.key != "version") {
         return Err(cx.err(a.line, format!("<scene>: unknown attribute '{}'", a.key)));
     }
+    not_an_nlos_scene(&cx, root)?;
 
     let mut bsdfs: HashMap<&str, &Node> = HashMap::new();
     let (mut integrator, mut emitter, mut shapes) = (None, None, Vec::new());
@@ -113,8 +138,18 @@ pub fn parse_with_defines(
             "sensor" => {
                 return Err(cx.err(c.line, "the <sensor type=\"nlos_capture_meter\"> must be nested in the relay wall's <shape type=\"rectangle\">"))
             }
+            "path" => {
+                if let Some(a) = c.attrs.iter().find(|a| a.key != "value") {
+                    return Err(cx.err(a.line, format!("<path>: unknown attribute '{}'", a.key)));
+                }
+                if let Some(k) = c.children.first() {
+                    return Err(cx.err(k.line, "<path> has a child element"));
+                }
+                let dir = c.attr("value").ok_or_else(|| cx.err(c.line, "<path> needs a value attribute (a folder to search for files)"))?;
+                files.prepend(dir, c.line).map_err(|m| cx.err(c.line, m))?;
+            }
             t => {
-                return Err(cx.err(c.line, format!("unknown element <{t}> (Umbra reads <default>, <integrator>, <emitter>, <shape> and <bsdf> at the top level)")))
+                return Err(cx.err(c.line, format!("unknown element <{t}> (Umbra reads <default>, <path>, <integrator>, <emitter>, <shape> and <bsdf> at the top level)")))
             }
         }
     }
@@ -129,7 +164,7 @@ pub fn parse_with_defines(
     let mut wall: Option<(WallCfg, usize)> = None;
     let mut objects = Vec::new();
     for s in shapes {
-        let shape = shape(&mut cx, s, &bsdfs, base_dir)?;
+        let shape = shape(&mut cx, s, &bsdfs, &files)?;
         match shape {
             Shape::Hidden(o) => objects.push(o),
             Shape::Wall(w) => {
@@ -145,7 +180,23 @@ pub fn parse_with_defines(
     })?;
     let em_node = emitter
         .ok_or_else(|| Error::scene(origin, "no laser: add an <emitter type=\"projector\">"))?;
-    let laser = projector(&mut cx, em_node, &w.wall, integ.capture)?;
+    // y-tal's legacy confocal sensor and its run-time laser aim (see `ytal`).
+    let capture = match w.legacy_confocal {
+        Some(line) => ytal::legacy_confocal_capture(&cx, integ.capture, line)?,
+        None => integ.capture,
+    };
+    let aimed = match aim {
+        None => None,
+        Some(_) if integ.capture != CaptureType::Single => {
+            return Err(cx.err(integ.capture_line, format!("-D laser_lookat_x/y aim the laser of one y-tal render (single capture, or y-tal's 1x1 confocal film), but this scene's capture_type is {}", integ.capture.name())));
+        }
+        Some(a) => Some(ytal::aim_point(&cx, a, &w.scan)?),
+    };
+    let scan = match (w.legacy_confocal, aimed) {
+        (Some(_), Some(p)) => ytal::one_point_scan(&w.scan, p),
+        _ => w.scan.clone(),
+    };
+    let laser = projector(&mut cx, em_node, &w.wall, capture, aimed)?;
 
     if let Some((afl, line)) = w.sensor_afl {
         if afl != integ.afl {
@@ -166,8 +217,8 @@ pub fn parse_with_defines(
         },
         wall: w.wall,
         laser,
-        scan: w.scan,
-        capture: integ.capture,
+        scan,
+        capture,
         film: FilmSpec {
             kernel: integ.kernel,
             ..w.film
@@ -185,9 +236,24 @@ pub fn parse_with_defines(
     Ok(scene)
 }
 
+/// A top-level `<sensor>` that is not an NLOS capture meter (a `perspective` camera,
+/// say: y-tal's steady and ground-truth scenes) makes this a scene Umbra cannot render;
+/// say so before anything else is judged.
+fn not_an_nlos_scene(cx: &Cx, root: &Node) -> Result<()> {
+    for c in root.children.iter().filter(|c| c.tag == "sensor") {
+        let kind = c.attr("type").unwrap_or("");
+        if kind != "nlos_capture_meter" {
+            return Err(cx.err(c.line, format!("<sensor type=\"{kind}\">: non-NLOS sensors are not supported. Umbra renders NLOS captures only: a <sensor type=\"nlos_capture_meter\"> nested in the relay wall's <shape type=\"rectangle\"> (y-tal's nlos_scene.xml; its steady_scene.xml and ground_truth_scene.xml are for Mitsuba's own cameras)")));
+        }
+    }
+    Ok(())
+}
+
 /// What the integrator element says, converted to Umbra's terms.
 struct IntegratorCfg {
     capture: CaptureType,
+    /// Line of capture_type (the integrator's if absent).
+    capture_line: usize,
     afl: bool,
     kernel: KernelSpec,
     /// spp and seed come from the sensor's sampler.
@@ -202,6 +268,7 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
         k => return Err(cx.err(node.line, format!("integrator type '{k}' is not supported: Umbra imports <integrator type=\"transient_nlos_path\">"))),
     }
     let _block_size = p.int(cx, "block_size")?; // Parallelism only.
+    let capture_line = p.line_of("capture_type");
     let capture = match p.take(cx, "capture_type", &["string", "integer"])? {
         None => CaptureType::Single,
         Some(n) => {
@@ -338,6 +405,7 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
     p.finish(cx)?;
     Ok(IntegratorCfg {
         capture,
+        capture_line,
         afl,
         kernel,
         render: RenderSettings {
@@ -401,7 +469,16 @@ fn mitransient_depth_to_bounces(
     )
 }
 
-fn projector(cx: &mut Cx, node: &Node, wall: &RelayWall, capture: CaptureType) -> Result<Laser> {
+/// The laser of `<emitter type="projector">`; `aimed`: the target y-tal aims it at (its
+/// `to_world` direction is then replaced, as y-tal's `focus_emitter_at_relay_wall_pixel`
+/// does).
+fn projector(
+    cx: &mut Cx,
+    node: &Node,
+    wall: &RelayWall,
+    capture: CaptureType,
+    aimed: Option<Vec3>,
+) -> Result<Laser> {
     let mut p = Plugin::new(node, cx)?;
     if p.kind() != "projector" {
         return Err(cx.err(
@@ -443,18 +520,22 @@ fn projector(cx: &mut Cx, node: &Node, wall: &RelayWall, capture: CaptureType) -
         s.abs() <= 0.5 + 1e-4 && t.abs() <= 0.5 + 1e-4
     };
     let translation_only = Mat3::from_mat4(m).abs_diff_eq(Mat3::IDENTITY, 1e-6);
-    let target = match hit {
-        _ if capture != CaptureType::Single => hit.filter(|&h| on_wall(h)).unwrap_or(wall.center),
-        Some(h) if on_wall(h) => h,
-        Some(h) if !translation_only => {
-            return Err(cx.err(xf_line, format!("the laser's beam (its local +z) meets the relay wall's plane at {h}, outside the wall")))
-        }
-        None if !translation_only => {
-            return Err(cx.err(xf_line, format!("the laser points away from the relay wall (its local +z is {dir})")))
-        }
-        _ => {
-            cx.warn(xf_line, format!("the projector's to_world is a translation only (y-tal aims the laser at run time): aiming it at the relay wall's centre {}", wall.center));
-            wall.center
+    let target = if let Some(t) = aimed {
+        t
+    } else {
+        match hit {
+            _ if capture != CaptureType::Single => hit.filter(|&h| on_wall(h)).unwrap_or(wall.center),
+            Some(h) if on_wall(h) => h,
+            Some(h) if !translation_only => {
+                return Err(cx.err(xf_line, format!("the laser's beam (its local +z) meets the relay wall's plane at {h}, outside the wall")))
+            }
+            None if !translation_only => {
+                return Err(cx.err(xf_line, format!("the laser points away from the relay wall (its local +z is {dir})")))
+            }
+            _ => {
+                cx.warn(xf_line, format!("the projector's to_world is a translation only (y-tal aims the laser at run time): aiming it at the relay wall's centre {}, y-tal's default; -D laser_lookat_x=.. -D laser_lookat_y=.. aim it at a film pixel as y-tal does", wall.center));
+                wall.center
+            }
         }
     };
     Ok(Laser {

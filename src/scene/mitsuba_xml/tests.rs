@@ -112,7 +112,7 @@ fn ytal_example_loads() {
 
 fn xf(body: &str) -> Mat4 {
     let text = format!("<transform name=\"to_world\">{body}</transform>");
-    let node = tree::parse(&text, Path::new("t.xml"), &[]).unwrap();
+    let node = tree::parse(&text, Path::new("t.xml"), &[]).unwrap().root;
     let cx = Cx {
         origin: Path::new("t.xml"),
         warnings: Vec::new(),

@@ -26,6 +26,7 @@ mod params;
 mod resolve;
 mod shapes;
 mod tree;
+mod wall_merge;
 mod ytal;
 pub mod write;
 
@@ -166,7 +167,7 @@ fn build(
     for s in shapes {
         let shape = shape(&mut cx, s, &bsdfs, &files)?;
         match shape {
-            Shape::Hidden(o) => objects.push(o),
+            Shape::Hidden(o, is_rect) => objects.push((o, is_rect)),
             Shape::Wall(w) => {
                 if let Some((_, first)) = wall {
                     return Err(cx.err(s.line, format!("a second relay wall (the first, with its nlos_capture_meter, is at line {first})")));
@@ -175,9 +176,11 @@ fn build(
             }
         }
     }
-    let (w, _) = wall.ok_or_else(|| {
+    let (mut w, _) = wall.ok_or_else(|| {
         Error::scene(origin, "no relay wall: a <shape type=\"rectangle\"> must carry the <sensor type=\"nlos_capture_meter\">")
     })?;
+    let (merged_wall, objects) = wall_merge::merge(&mut cx, w.wall.clone(), objects);
+    w.wall = merged_wall;
     let em_node = emitter
         .ok_or_else(|| Error::scene(origin, "no laser: add an <emitter type=\"projector\">"))?;
     // y-tal's legacy confocal sensor and its run-time laser aim (see `ytal`).

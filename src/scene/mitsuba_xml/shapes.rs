@@ -12,7 +12,8 @@ use std::collections::HashMap;
 use std::path::Path;
 
 pub(super) enum Shape {
-    Hidden(HiddenObject),
+    /// A hidden object, and whether it is a Mitsuba `rectangle`.
+    Hidden(HiddenObject, bool),
     Wall(Box<WallCfg>),
 }
 
@@ -153,13 +154,16 @@ pub(super) fn shape(
     if mesh.triangles.is_empty() {
         return Err(cx.err(node.line, format!("{name} has no non-degenerate triangles")));
     }
-    Ok(Shape::Hidden(HiddenObject {
-        name,
-        mesh,
-        albedo,
-        two_sided,
-        reflectance: crate::scene::Reflectance::Lambertian,
-    }))
+    Ok(Shape::Hidden(
+        HiddenObject {
+            name,
+            mesh,
+            albedo,
+            two_sided,
+            reflectance: crate::scene::Reflectance::Lambertian,
+        },
+        kind == "rectangle",
+    ))
 }
 
 /// Whether all triangles of `mesh` have the same normal (then Mitsuba's smoothed vertex

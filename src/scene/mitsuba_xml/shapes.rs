@@ -225,7 +225,7 @@ fn sensor(cx: &mut Cx, node: &Node) -> Result<WallCfg> {
         return Err(cx.err(
             node.line,
             format!(
-                "sensor type '{}' is not supported: the relay wall carries a nlos_capture_meter",
+                "<sensor type=\"{}\">: non-NLOS sensors are not supported; the relay wall carries a <sensor type=\"nlos_capture_meter\">",
                 p.kind()
             ),
         ));

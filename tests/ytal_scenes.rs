@@ -59,7 +59,10 @@ fn relative_mesh_paths_are_found_in_the_working_directory_like_mitsuba() {
         assert!(e.contains(place), "{e}");
     }
     let tried = dir.join("../meshes/plate.obj").display().to_string();
-    assert!(e.contains(&tried) && e.contains("nlos_scene.xml:27:"), "{e}");
+    assert!(
+        e.contains(&tried) && e.contains("nlos_scene.xml:27:"),
+        "{e}"
+    );
 
     // The CLI searches its working directory too.
     let bin = env!("CARGO_BIN_EXE_umbra");
@@ -73,7 +76,11 @@ fn relative_mesh_paths_are_found_in_the_working_directory_like_mitsuba() {
             .unwrap()
     };
     let ok = run(&ytal("confocal"), "render/nlos_scene.xml");
-    assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
+    assert!(
+        ok.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
     let bad = run(&dir, "nlos_scene.xml");
     assert_eq!(bad.status.code(), Some(1));
     let err = String::from_utf8_lossy(&bad.stderr);
@@ -101,7 +108,10 @@ fn a_path_element_is_searched_first() {
     )
     .unwrap_err()
     .to_string();
-    assert!(e.contains("<path value=\"../nowhere\">: no such folder"), "{e}");
+    assert!(
+        e.contains("<path value=\"../nowhere\">: no such folder"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -116,7 +126,11 @@ fn ytal_confocal_film_is_a_confocal_capture_of_the_original_size() {
     assert_eq!(s.render.spp, 4000);
 
     // One y-tal render: laser (and so the confocal point) aimed at pixel (2, 1).
-    let one = load(CONFOCAL, &[("laser_lookat_x", "2.5"), ("laser_lookat_y", "1.5")]).unwrap();
+    let one = load(
+        CONFOCAL,
+        &[("laser_lookat_x", "2.5"), ("laser_lookat_y", "1.5")],
+    )
+    .unwrap();
     assert_eq!(one.capture, CaptureType::Confocal);
     assert_eq!(one.output_shape(), vec![1, 1, 64]);
     assert!(close(one.scan.point(0), s.scan.point(6)));
@@ -266,11 +280,7 @@ fn a_perspective_sensor_is_named_as_unsupported() {
         "\n    <sensor type=\"perspective\"><float name=\"fov\" value=\"30\"/></sensor>\n    <emitter",
         1,
     );
-    let line = top
-        .lines()
-        .position(|l| l.contains("perspective"))
-        .unwrap()
-        + 1;
+    let line = top.lines().position(|l| l.contains("perspective")).unwrap() + 1;
     let e = parse_with_defines(&top, Path::new("v.xml"), &ytal("exhaustive"), &[])
         .unwrap_err()
         .to_string();

@@ -27,8 +27,8 @@ mod resolve;
 mod shapes;
 mod tree;
 mod wall_merge;
-mod ytal;
 pub mod write;
+mod ytal;
 
 #[cfg(test)]
 mod tests;
@@ -85,7 +85,12 @@ pub fn parse_with_defines(
     defines: &[(String, String)],
 ) -> Result<Scene> {
     let cwd = std::env::current_dir().ok();
-    build(text, origin, Resolver::new(base_dir, cwd.as_deref()), defines)
+    build(
+        text,
+        origin,
+        Resolver::new(base_dir, cwd.as_deref()),
+        defines,
+    )
 }
 
 fn build(

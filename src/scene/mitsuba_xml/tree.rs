@@ -163,7 +163,10 @@ pub(crate) fn unused_defines(
         if v.is_empty() {
             "none".to_string()
         } else {
-            v.iter().map(|n| format!("${n}")).collect::<Vec<_>>().join(", ")
+            v.iter()
+                .map(|n| format!("${n}"))
+                .collect::<Vec<_>>()
+                .join(", ")
         }
     };
     let declared: Vec<&str> = parsed.declared.iter().map(String::as_str).collect();

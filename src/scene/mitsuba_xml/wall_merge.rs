@@ -11,7 +11,6 @@
 use super::params::Cx;
 use crate::scene::{HiddenObject, Reflectance, RelayWall};
 
-
 /// `[s0, s1] x [t0, t1]` in metres along the wall's unit axes, from its centre.
 type Span = [f64; 4];
 
@@ -62,7 +61,13 @@ pub(super) fn merge(
     };
     let spans: Vec<Option<Span>> = objects
         .iter()
-        .map(|(o, is_rect)| if *is_rect && orthogonal { span_of(o) } else { None })
+        .map(|(o, is_rect)| {
+            if *is_rect && orthogonal {
+                span_of(o)
+            } else {
+                None
+            }
+        })
         .collect();
     let own: Span = {
         let (hw, hh) = (u.length() / 2.0, v.length() / 2.0);
@@ -75,17 +80,24 @@ pub(super) fn merge(
         return (wall, done(objects));
     }
     let area = |s: &Span| (s[1] - s[0]) * (s[3] - s[2]);
-    let bb = all.iter().fold([f64::MAX, f64::MIN, f64::MAX, f64::MIN], |b, s| {
-        [b[0].min(s[0]), b[1].max(s[1]), b[2].min(s[2]), b[3].max(s[3])]
-    });
+    let bb = all
+        .iter()
+        .fold([f64::MAX, f64::MIN, f64::MAX, f64::MIN], |b, s| {
+            [
+                b[0].min(s[0]),
+                b[1].max(s[1]),
+                b[2].min(s[2]),
+                b[3].max(s[3]),
+            ]
+        });
     let overlap = |a: &Span, b: &Span| {
         let w = (a[1].min(b[1]) - a[0].max(b[0])).max(0.0);
         let h = (a[3].min(b[3]) - a[2].max(b[2])).max(0.0);
         w * h
     };
     let eps = 1e-6 * area(&bb);
-    let disjoint = (0..all.len())
-        .all(|i| (i + 1..all.len()).all(|j| overlap(&all[i], &all[j]) <= eps));
+    let disjoint =
+        (0..all.len()).all(|i| (i + 1..all.len()).all(|j| overlap(&all[i], &all[j]) <= eps));
     let tiles = (all.iter().map(area).sum::<f64>() - area(&bb)).abs() <= eps;
     if !(disjoint && tiles) {
         return (wall, done(objects));

@@ -60,7 +60,10 @@ pub fn write(scene: &Scene, xml: &Path) -> Result<Exported> {
     let rest = wall_rest(scene, xml)?;
     if !rest.is_empty() {
         let t = &scene.render.techniques;
-        if t.hidden_geometry_sampling && !t.hidden_geometry_includes_wall && scene.render.max_bounces > 3 {
+        if t.hidden_geometry_sampling
+            && !t.hidden_geometry_includes_wall
+            && scene.render.max_bounces > 3
+        {
             warnings.push("the wall outside the scan area is written as plain rectangles: with hidden-geometry sampling that leaves out the relay wall, mitransient counts multi-bounce paths through them that Umbra leaves out (three-bounce light is the same)".into());
         }
     }

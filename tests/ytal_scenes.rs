@@ -175,10 +175,21 @@ fn ytal_exhaustive_xml_renders_each_laser_point_as_ytal_aims_it() {
     assert!(!one.warnings.iter().any(|w| w.contains("translation only")));
     assert!(close(one.laser.origin, Vec3::new(0.25, -0.2, 0.35)));
 
-    // y-tal's whole grid (laser grid = scan grid here) is Umbra's exhaustive capture:
-    // its laser point (lx 3, ly 0) is that single render.
-    let mut exh = s.clone();
-    exh.capture = CaptureType::Exhaustive;
+    // y-tal's whole grid (laser grid = scan grid here), `-D scan_type=exhaustive` with
+    // y-tal's YAML keys, is Umbra's exhaustive capture: its laser point (lx 3, ly 0) is
+    // that single render.
+    let exh = load(
+        EXHAUSTIVE,
+        &[
+            ("scan_type", "exhaustive"),
+            ("laser_width", "4"),
+            ("laser_height", "4"),
+        ],
+    )
+    .unwrap();
+    assert_eq!(exh.capture, CaptureType::Exhaustive);
+    assert_eq!(exh.output_shape(), vec![4, 4, 4, 4, 64]);
+    assert_eq!(exh.scan, s.scan);
     let (all, single) = (
         render(&exh, Model::Tri3, 1, 0),
         render(&one, Model::Tri3, 1, 0),
@@ -202,6 +213,24 @@ fn ytal_exhaustive_xml_renders_each_laser_point_as_ytal_aims_it() {
         (
             vec![("laser_lookat_x", "4.5"), ("laser_lookat_y", "1")],
             "must lie on the 4x4 film",
+        ),
+        // Umbra's exhaustive laser grid is the scan grid.
+        (
+            vec![("scan_type", "exhaustive"), ("laser_width", "2")],
+            "y-tal's 2x4 laser grid",
+        ),
+        (
+            vec![("laser_width", "4")],
+            "go with -D scan_type=exhaustive",
+        ),
+        (vec![("scan_type", "confocal")], "only as 'exhaustive'"),
+        (
+            vec![
+                ("scan_type", "exhaustive"),
+                ("laser_lookat_x", "1"),
+                ("laser_lookat_y", "1"),
+            ],
+            "exclude each other",
         ),
     ] {
         let e = load(EXHAUSTIVE, &d).unwrap_err().to_string();

@@ -15,7 +15,9 @@ with y-tal's laser_lookat (film pixel units), and render.
 - exhaustive: y-tal's single-capture XML aimed at one laser point, (3, 0) of its 4 x 4
   laser grid: lookat (3.5, 0.5).
 Umbra side: `umbra render render/nlos_scene.xml` run in the same folder (confocal: the
-whole 4 x 4 capture in one run; exhaustive: `-D laser_lookat_x=3.5 -D laser_lookat_y=0.5`).
+whole 4 x 4 capture in one run; exhaustive: `-D laser_lookat_x=3.5 -D laser_lookat_y=0.5`,
+and the whole grid with `-D scan_type=exhaustive -D laser_width=4 -D laser_height=4`, sliced
+at that laser point).
 
 Statistics: K independent seeds per renderer. Per scan point, the time-summed signal's
 mean difference against its standard error (per-point variances across seeds, both
@@ -125,3 +127,9 @@ def test_ytal_exhaustive_xml_one_laser_point(mt, umbra, tmp_path, monkeypatch):
     U = np.stack([_umbra(umbra, 100 + s, tmp_path / f"u{s}.npy", aim) for s in range(K)])
     assert U.shape == M.shape == (K, 4, 4, T)
     _check("exhaustive-L3-0", M, U)
+    # y-tal's whole laser grid in one Umbra run (-D scan_type=exhaustive): its laser point
+    # (lx 3, ly 0) of the (sy, sx, ly, lx, T) capture against the same mitransient renders.
+    full = ("scan_type=exhaustive", "laser_width=4", "laser_height=4")
+    E = np.stack([_umbra(umbra, 200 + s, tmp_path / f"e{s}.npy", full) for s in range(K)])
+    assert E.shape == (K, 4, 4, 4, 4, T)
+    _check("exhaustive-grid-L3-0", M, E[:, :, :, 0, 3, :])

@@ -57,7 +57,7 @@ pub fn load(path: &Path) -> Result<Scene> {
 }
 
 /// [`load`] with `$name` values set from outside (Mitsuba's `-D name=value`; y-tal's
-/// `laser_lookat_x/y` aim the laser, see [`ytal`]).
+/// run-time `laser_lookat_x/y` and `scan_type=exhaustive`, see the `ytal` module).
 pub fn load_with_defines(path: &Path, defines: &[(String, String)]) -> Result<Scene> {
     let cwd = std::env::current_dir().ok();
     load_in(path, defines, cwd.as_deref())
@@ -100,7 +100,7 @@ fn build(
     defines: &[(String, String)],
 ) -> Result<Scene> {
     let parsed = tree::parse(text, origin, defines)?;
-    let aim = ytal::split_defines(&parsed, origin, defines)?;
+    let run = ytal::split_defines(&parsed, origin, defines)?;
     let root = &parsed.root;
     let mut cx = Cx {
         origin,
@@ -188,22 +188,15 @@ fn build(
     w.wall = merged_wall;
     let em_node = emitter
         .ok_or_else(|| Error::scene(origin, "no laser: add an <emitter type=\"projector\">"))?;
-    // y-tal's legacy confocal sensor and its run-time laser aim (see `ytal`).
-    let capture = match w.legacy_confocal {
-        Some(line) => ytal::legacy_confocal_capture(&cx, integ.capture, line)?,
-        None => integ.capture,
-    };
-    let aimed = match aim {
-        None => None,
-        Some(_) if integ.capture != CaptureType::Single => {
-            return Err(cx.err(integ.capture_line, format!("-D laser_lookat_x/y aim the laser of one y-tal render (single capture, or y-tal's 1x1 confocal film), but this scene's capture_type is {}", integ.capture.name())));
-        }
-        Some(a) => Some(ytal::aim_point(&cx, a, &w.scan)?),
-    };
-    let scan = match (w.legacy_confocal, aimed) {
-        (Some(_), Some(p)) => ytal::one_point_scan(&w.scan, p),
-        _ => w.scan.clone(),
-    };
+    // y-tal's legacy confocal sensor and its run-time requests (see `ytal`).
+    let (capture, aimed, scan) = ytal::resolve(
+        &cx,
+        run,
+        integ.capture,
+        integ.capture_line,
+        w.legacy_confocal,
+        &w.scan,
+    )?;
     let laser = projector(&mut cx, em_node, &w.wall, capture, aimed)?;
 
     if let Some((afl, line)) = w.sensor_afl {

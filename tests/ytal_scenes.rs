@@ -303,6 +303,15 @@ fn defines_the_scene_never_uses_are_errors_naming_them() {
 
 #[test]
 fn a_perspective_sensor_is_named_as_unsupported() {
+    // y-tal's steady_scene.xml (written next to its nlos_scene.xml): two perspective
+    // cameras, the first at line 71.
+    let e = load("exhaustive/render/steady_scene.xml", &[])
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("steady_scene.xml:71: <sensor type=\"perspective\">: non-NLOS sensors are not supported"),
+        "{e}"
+    );
     let text = std::fs::read_to_string(ytal(EXHAUSTIVE)).unwrap();
     let top = text.replacen(
         "\n    <emitter",

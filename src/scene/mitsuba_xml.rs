@@ -19,7 +19,15 @@
 //!   +z (as mitransient, which traces that ray); in single capture its target is where
 //!   that ray meets the wall (an error if it points away or misses the wall). y-tal
 //!   writes a translation-only `to_world` and aims the laser at run time: such a laser
-//!   is aimed at the wall's centre, with a warning.
+//!   is aimed at the wall's centre, with a warning, unless `-D laser_lookat_x/y` aim it
+//!   as y-tal does (module `ytal`: y-tal's run-time aim, its 1x1 confocal film with
+//!   `original_film_width/height`, and `-D scan_type=exhaustive`).
+//! - Relative file names: Mitsuba's search order (module `resolve`): `<path>` folders,
+//!   the XML's folder, the working directory. A `-D name=value` the file never uses
+//!   (`$name`) is an error, as in Mitsuba, except y-tal's run-time names.
+//! - Rectangles that extend the relay wall in its plane with its BSDF are merged into it
+//!   (module `wall_merge`): how a wall larger than its scan area is written.
+//! - A top-level non-NLOS `<sensor>` (a `perspective` camera) is named as unsupported.
 //! - Depths: see [`mitransient_depth_to_bounces`].
 
 mod params;

@@ -59,7 +59,7 @@ use tree::Node;
 const DEFAULT_PROJECTOR_FOV: f32 = 34.0221;
 
 /// Reads a Mitsuba XML scene; relative OBJ filenames resolve as Mitsuba resolves them
-/// (the XML's folder, then the current working directory: [`resolve`]).
+/// (`<path>` folders, the XML's folder, then the current working directory).
 pub fn load(path: &Path) -> Result<Scene> {
     load_with_defines(path, &[])
 }

@@ -19,13 +19,24 @@
 //!   +z (as mitransient, which traces that ray); in single capture its target is where
 //!   that ray meets the wall (an error if it points away or misses the wall). y-tal
 //!   writes a translation-only `to_world` and aims the laser at run time: such a laser
-//!   is aimed at the wall's centre, with a warning.
+//!   is aimed at the wall's centre, with a warning, unless `-D laser_lookat_x/y` aim it
+//!   as y-tal does (module `ytal`: y-tal's run-time aim, its 1x1 confocal film with
+//!   `original_film_width/height`, and `-D scan_type=exhaustive`).
+//! - Relative file names: Mitsuba's search order (module `resolve`): `<path>` folders,
+//!   the XML's folder, the working directory. A `-D name=value` the file never uses
+//!   (`$name`) is an error, as in Mitsuba, except y-tal's run-time names.
+//! - Rectangles that extend the relay wall in its plane with its BSDF are merged into it
+//!   (module `wall_merge`): how a wall larger than its scan area is written.
+//! - A top-level non-NLOS `<sensor>` (a `perspective` camera) is named as unsupported.
 //! - Depths: see [`mitransient_depth_to_bounces`].
 
 mod params;
+mod resolve;
 mod shapes;
 mod tree;
+mod wall_merge;
 pub mod write;
+mod ytal;
 
 #[cfg(test)]
 mod tests;
@@ -37,6 +48,7 @@ use super::{
 use crate::error::{Error, Result};
 use glam::{Mat3, Mat4, Vec3};
 use params::{Cx, Plugin};
+use resolve::Resolver;
 use shapes::{shape, Shape, WallCfg};
 use std::collections::HashMap;
 use std::path::Path;
@@ -46,20 +58,29 @@ use tree::Node;
 /// reports for a default projector).
 const DEFAULT_PROJECTOR_FOV: f32 = 34.0221;
 
-/// Reads a Mitsuba XML scene; relative OBJ filenames resolve against its folder.
+/// Reads a Mitsuba XML scene; relative OBJ filenames resolve as Mitsuba resolves them
+/// (`<path>` folders, the XML's folder, then the current working directory).
 pub fn load(path: &Path) -> Result<Scene> {
     load_with_defines(path, &[])
 }
 
-/// [`load`] with `$name` values set from outside (Mitsuba's `-D name=value`).
+/// [`load`] with `$name` values set from outside (Mitsuba's `-D name=value`; y-tal's
+/// run-time `laser_lookat_x/y` and `scan_type=exhaustive`, see the `ytal` module).
 pub fn load_with_defines(path: &Path, defines: &[(String, String)]) -> Result<Scene> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
-    parse_with_defines(&text, path, &base, defines)
+    let cwd = std::env::current_dir().ok();
+    load_in(path, defines, cwd.as_deref())
 }
 
-/// Parses Mitsuba XML text. `origin` names it in messages; `base_dir` resolves relative
-/// OBJ filenames.
+/// [`load_with_defines`] as if run in the folder `cwd` (`None`: search only next to
+/// the XML).
+pub fn load_in(path: &Path, defines: &[(String, String)], cwd: Option<&Path>) -> Result<Scene> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    build(&text, path, Resolver::new(&base, cwd), defines)
+}
+
+/// Parses Mitsuba XML text. `origin` names it in messages; relative OBJ filenames are
+/// looked for in `base_dir`, then in the current working directory.
 pub fn parse(text: &str, origin: &Path, base_dir: &Path) -> Result<Scene> {
     parse_with_defines(text, origin, base_dir, &[])
 }
@@ -71,7 +92,24 @@ pub fn parse_with_defines(
     base_dir: &Path,
     defines: &[(String, String)],
 ) -> Result<Scene> {
-    let root = tree::parse(text, origin, defines)?;
+    let cwd = std::env::current_dir().ok();
+    build(
+        text,
+        origin,
+        Resolver::new(base_dir, cwd.as_deref()),
+        defines,
+    )
+}
+
+fn build(
+    text: &str,
+    origin: &Path,
+    mut files: Resolver,
+    defines: &[(String, String)],
+) -> Result<Scene> {
+    let parsed = tree::parse(text, origin, defines)?;
+    let run = ytal::split_defines(&parsed, origin, defines)?;
+    let root = &parsed.root;
     let mut cx = Cx {
         origin,
         warnings: Vec::new(),
@@ -88,6 +126,7 @@ pub fn parse_with_defines(
     if let Some(a) = root.attrs.iter().find(|a| a.key != "version") {
         return Err(cx.err(a.line, format!("<scene>: unknown attribute '{}'", a.key)));
     }
+    not_an_nlos_scene(&cx, root)?;
 
     let mut bsdfs: HashMap<&str, &Node> = HashMap::new();
     let (mut integrator, mut emitter, mut shapes) = (None, None, Vec::new());
@@ -113,8 +152,18 @@ pub fn parse_with_defines(
             "sensor" => {
                 return Err(cx.err(c.line, "the <sensor type=\"nlos_capture_meter\"> must be nested in the relay wall's <shape type=\"rectangle\">"))
             }
+            "path" => {
+                if let Some(a) = c.attrs.iter().find(|a| a.key != "value") {
+                    return Err(cx.err(a.line, format!("<path>: unknown attribute '{}'", a.key)));
+                }
+                if let Some(k) = c.children.first() {
+                    return Err(cx.err(k.line, "<path> has a child element"));
+                }
+                let dir = c.attr("value").ok_or_else(|| cx.err(c.line, "<path> needs a value attribute (a folder to search for files)"))?;
+                files.prepend(dir, c.line).map_err(|m| cx.err(c.line, m))?;
+            }
             t => {
-                return Err(cx.err(c.line, format!("unknown element <{t}> (Umbra reads <default>, <integrator>, <emitter>, <shape> and <bsdf> at the top level)")))
+                return Err(cx.err(c.line, format!("unknown element <{t}> (Umbra reads <default>, <path>, <integrator>, <emitter>, <shape> and <bsdf> at the top level)")))
             }
         }
     }
@@ -129,9 +178,9 @@ pub fn parse_with_defines(
     let mut wall: Option<(WallCfg, usize)> = None;
     let mut objects = Vec::new();
     for s in shapes {
-        let shape = shape(&mut cx, s, &bsdfs, base_dir)?;
+        let shape = shape(&mut cx, s, &bsdfs, &files)?;
         match shape {
-            Shape::Hidden(o) => objects.push(o),
+            Shape::Hidden(o, is_rect) => objects.push((o, is_rect)),
             Shape::Wall(w) => {
                 if let Some((_, first)) = wall {
                     return Err(cx.err(s.line, format!("a second relay wall (the first, with its nlos_capture_meter, is at line {first})")));
@@ -140,12 +189,23 @@ pub fn parse_with_defines(
             }
         }
     }
-    let (w, _) = wall.ok_or_else(|| {
+    let (mut w, _) = wall.ok_or_else(|| {
         Error::scene(origin, "no relay wall: a <shape type=\"rectangle\"> must carry the <sensor type=\"nlos_capture_meter\">")
     })?;
+    let (merged_wall, objects) = wall_merge::merge(&mut cx, w.wall.clone(), objects);
+    w.wall = merged_wall;
     let em_node = emitter
         .ok_or_else(|| Error::scene(origin, "no laser: add an <emitter type=\"projector\">"))?;
-    let laser = projector(&mut cx, em_node, &w.wall, integ.capture)?;
+    // y-tal's legacy confocal sensor and its run-time requests (see `ytal`).
+    let (capture, aimed, scan) = ytal::resolve(
+        &cx,
+        run,
+        integ.capture,
+        integ.capture_line,
+        w.legacy_confocal,
+        &w.scan,
+    )?;
+    let laser = projector(&mut cx, em_node, &w.wall, capture, aimed)?;
 
     if let Some((afl, line)) = w.sensor_afl {
         if afl != integ.afl {
@@ -166,8 +226,8 @@ pub fn parse_with_defines(
         },
         wall: w.wall,
         laser,
-        scan: w.scan,
-        capture: integ.capture,
+        scan,
+        capture,
         film: FilmSpec {
             kernel: integ.kernel,
             ..w.film
@@ -185,9 +245,24 @@ pub fn parse_with_defines(
     Ok(scene)
 }
 
+/// A top-level `<sensor>` that is not an NLOS capture meter (a `perspective` camera,
+/// say: y-tal's steady and ground-truth scenes) makes this a scene Umbra cannot render;
+/// say so before anything else is judged.
+fn not_an_nlos_scene(cx: &Cx, root: &Node) -> Result<()> {
+    for c in root.children.iter().filter(|c| c.tag == "sensor") {
+        let kind = c.attr("type").unwrap_or("");
+        if kind != "nlos_capture_meter" {
+            return Err(cx.err(c.line, format!("<sensor type=\"{kind}\">: non-NLOS sensors are not supported. Umbra renders NLOS captures only: a <sensor type=\"nlos_capture_meter\"> nested in the relay wall's <shape type=\"rectangle\"> (y-tal's nlos_scene.xml; its steady_scene.xml and ground_truth_scene.xml are for Mitsuba's own cameras)")));
+        }
+    }
+    Ok(())
+}
+
 /// What the integrator element says, converted to Umbra's terms.
 struct IntegratorCfg {
     capture: CaptureType,
+    /// Line of capture_type (the integrator's if absent).
+    capture_line: usize,
     afl: bool,
     kernel: KernelSpec,
     /// spp and seed come from the sensor's sampler.
@@ -202,6 +277,7 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
         k => return Err(cx.err(node.line, format!("integrator type '{k}' is not supported: Umbra imports <integrator type=\"transient_nlos_path\">"))),
     }
     let _block_size = p.int(cx, "block_size")?; // Parallelism only.
+    let capture_line = p.line_of("capture_type");
     let capture = match p.take(cx, "capture_type", &["string", "integer"])? {
         None => CaptureType::Single,
         Some(n) => {
@@ -338,6 +414,7 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
     p.finish(cx)?;
     Ok(IntegratorCfg {
         capture,
+        capture_line,
         afl,
         kernel,
         render: RenderSettings {
@@ -403,7 +480,16 @@ fn mitransient_depth_to_bounces(
     )
 }
 
-fn projector(cx: &mut Cx, node: &Node, wall: &RelayWall, capture: CaptureType) -> Result<Laser> {
+/// The laser of `<emitter type="projector">`; `aimed`: the target y-tal aims it at (its
+/// `to_world` direction is then replaced, as y-tal's `focus_emitter_at_relay_wall_pixel`
+/// does).
+fn projector(
+    cx: &mut Cx,
+    node: &Node,
+    wall: &RelayWall,
+    capture: CaptureType,
+    aimed: Option<Vec3>,
+) -> Result<Laser> {
     let mut p = Plugin::new(node, cx)?;
     if p.kind() != "projector" {
         return Err(cx.err(
@@ -445,18 +531,22 @@ fn projector(cx: &mut Cx, node: &Node, wall: &RelayWall, capture: CaptureType) -
         s.abs() <= 0.5 + 1e-4 && t.abs() <= 0.5 + 1e-4
     };
     let translation_only = Mat3::from_mat4(m).abs_diff_eq(Mat3::IDENTITY, 1e-6);
-    let target = match hit {
-        _ if capture != CaptureType::Single => hit.filter(|&h| on_wall(h)).unwrap_or(wall.center),
-        Some(h) if on_wall(h) => h,
-        Some(h) if !translation_only => {
-            return Err(cx.err(xf_line, format!("the laser's beam (its local +z) meets the relay wall's plane at {h}, outside the wall")))
-        }
-        None if !translation_only => {
-            return Err(cx.err(xf_line, format!("the laser points away from the relay wall (its local +z is {dir})")))
-        }
-        _ => {
-            cx.warn(xf_line, format!("the projector's to_world is a translation only (y-tal aims the laser at run time): aiming it at the relay wall's centre {}", wall.center));
-            wall.center
+    let target = if let Some(t) = aimed {
+        t
+    } else {
+        match hit {
+            _ if capture != CaptureType::Single => hit.filter(|&h| on_wall(h)).unwrap_or(wall.center),
+            Some(h) if on_wall(h) => h,
+            Some(h) if !translation_only => {
+                return Err(cx.err(xf_line, format!("the laser's beam (its local +z) meets the relay wall's plane at {h}, outside the wall")))
+            }
+            None if !translation_only => {
+                return Err(cx.err(xf_line, format!("the laser points away from the relay wall (its local +z is {dir})")))
+            }
+            _ => {
+                cx.warn(xf_line, format!("the projector's to_world is a translation only (y-tal aims the laser at run time): aiming it at the relay wall's centre {}, y-tal's default; -D laser_lookat_x=.. -D laser_lookat_y=.. aim it at a film pixel as y-tal does", wall.center));
+                wall.center
+            }
         }
     };
     Ok(Laser {

@@ -2,6 +2,7 @@
 //! rectangle with its `nlos_capture_meter`, film and sampler.
 
 use super::params::{Cx, Plugin};
+use super::resolve::Resolver;
 use super::tree::Node;
 use crate::error::Result;
 use crate::geometry::mesh::TriMesh;
@@ -11,7 +12,8 @@ use std::collections::HashMap;
 use std::path::Path;
 
 pub(super) enum Shape {
-    Hidden(HiddenObject),
+    /// A hidden object, and whether it is a Mitsuba `rectangle`.
+    Hidden(HiddenObject, bool),
     Wall(Box<WallCfg>),
 }
 
@@ -22,6 +24,9 @@ pub(super) struct WallCfg {
     pub film: FilmSpec,
     pub sensor_origin: Vec3,
     pub sensor_afl: Option<(bool, usize)>,
+    /// mitransient's legacy confocal sensor: `original_film_width/height` (the scan
+    /// grid, also in `scan`) with a 1x1 film, and the line of the first of them.
+    pub legacy_confocal: Option<usize>,
     pub spp: u32,
     pub seed: u64,
     /// (film's exhaustive_scan, its line); (laser_scan_width/height, line).
@@ -33,7 +38,7 @@ pub(super) fn shape(
     cx: &mut Cx,
     node: &Node,
     bsdfs: &HashMap<&str, &Node>,
-    base_dir: &Path,
+    files: &Resolver,
 ) -> Result<Shape> {
     let mut p = Plugin::new(node, cx)?;
     let kind = p.kind();
@@ -64,7 +69,9 @@ pub(super) fn shape(
             return Err(cx.err(s.line, "the nlos_capture_meter must sit in a <shape type=\"rectangle\"> (Umbra's relay wall is a rectangle)"));
         }
         p.finish(cx)?;
-        let path = base_dir.join(file);
+        let path = files
+            .resolve(file)
+            .map_err(|m| cx.err(fline, format!("<shape type=\"obj\">: {m}")))?;
         let text = std::fs::read_to_string(&path).map_err(|e| {
             cx.err(
                 fline,
@@ -147,13 +154,16 @@ pub(super) fn shape(
     if mesh.triangles.is_empty() {
         return Err(cx.err(node.line, format!("{name} has no non-degenerate triangles")));
     }
-    Ok(Shape::Hidden(HiddenObject {
-        name,
-        mesh,
-        albedo,
-        two_sided,
-        reflectance: crate::scene::Reflectance::Lambertian,
-    }))
+    Ok(Shape::Hidden(
+        HiddenObject {
+            name,
+            mesh,
+            albedo,
+            two_sided,
+            reflectance: crate::scene::Reflectance::Lambertian,
+        },
+        kind == "rectangle",
+    ))
 }
 
 /// Whether all triangles of `mesh` have the same normal (then Mitsuba's smoothed vertex
@@ -215,7 +225,7 @@ fn sensor(cx: &mut Cx, node: &Node) -> Result<WallCfg> {
         return Err(cx.err(
             node.line,
             format!(
-                "sensor type '{}' is not supported: the relay wall carries a nlos_capture_meter",
+                "<sensor type=\"{}\">: non-NLOS sensors are not supported; the relay wall carries a <sensor type=\"nlos_capture_meter\">",
                 p.kind()
             ),
         ));
@@ -224,6 +234,26 @@ fn sensor(cx: &mut Cx, node: &Node) -> Result<WallCfg> {
     let sensor_afl = p
         .bool(cx, "account_first_and_last_bounces")?
         .map(|b| (b, p.line_of("account_first_and_last_bounces")));
+    let ow = p.int(cx, "original_film_width")?;
+    let oh = p.int(cx, "original_film_height")?;
+    let original = match (ow, oh) {
+        (None, None) => None,
+        (Some((w, lw)), Some((h, lh))) => {
+            let pos = |v: i64, l: usize, name: &str| {
+                u32::try_from(v).ok().filter(|&v| v > 0).ok_or_else(|| {
+                    cx.err(l, format!("{name} must be a positive count, got {v}"))
+                })
+            };
+            Some((
+                pos(w, lw, "original_film_width")?,
+                pos(h, lh, "original_film_height")?,
+                lw.min(lh),
+            ))
+        }
+        (Some((_, l)), None) | (None, Some((_, l))) => {
+            return Err(cx.err(l, "give both original_film_width and original_film_height (mitransient's confocal sensor; with only one it ignores it and Mitsuba refuses the other as unreferenced)"))
+        }
+    };
     let film_node = p.object(cx, &["film"])?.ok_or_else(|| {
         cx.err(
             node.line,
@@ -259,8 +289,16 @@ fn sensor(cx: &mut Cx, node: &Node) -> Result<WallCfg> {
             .filter(|&v| v > 0)
             .ok_or_else(|| cx.err(line, format!("{name} must be a positive count, got {v}")))
     };
-    let nx = count(&mut f, cx, "width", None)?;
-    let ny = count(&mut f, cx, "height", None)?;
+    let mut nx = count(&mut f, cx, "width", None)?;
+    let mut ny = count(&mut f, cx, "height", None)?;
+    if let Some((w, h, _)) = original {
+        // mitransient 1.3.1 (nlos_capture_meter): a confocal capture of w x h points
+        // taken one point per render through a 1x1 film (y-tal's scan_type: confocal).
+        if (nx, ny) != (1, 1) {
+            return Err(cx.err(f.line_of("width"), format!("with original_film_width/height the film must be 1 x 1 (mitransient's confocal sensor), got {nx} x {ny}")));
+        }
+        (nx, ny) = (w, h);
+    }
     let temporal_bins = count(&mut f, cx, "temporal_bins", Some(2048))?;
     let bin_width_opl = f.float(cx, "bin_width_opl")?.unwrap_or(0.003);
     if bin_width_opl <= 0.0 {
@@ -342,6 +380,7 @@ fn sensor(cx: &mut Cx, node: &Node) -> Result<WallCfg> {
         },
         sensor_origin,
         sensor_afl,
+        legacy_confocal: original.map(|o| o.2),
         spp,
         seed,
         exhaustive_scan,

@@ -112,7 +112,7 @@ fn ytal_example_loads() {
 
 fn xf(body: &str) -> Mat4 {
     let text = format!("<transform name=\"to_world\">{body}</transform>");
-    let node = tree::parse(&text, Path::new("t.xml"), &[]).unwrap();
+    let node = tree::parse(&text, Path::new("t.xml"), &[]).unwrap().root;
     let cx = Cx {
         origin: Path::new("t.xml"),
         warnings: Vec::new(),
@@ -483,4 +483,32 @@ fn hidden_geometry_flags_need_hidden_geometry_sampling() {
     );
     let tech = parse_str(&t).unwrap().render.techniques;
     assert!(tech.hidden_geometry_sampling && tech.hidden_geometry_includes_wall);
+}
+
+#[test]
+fn rectangles_extending_the_relay_wall_are_merged_into_it() {
+    // The y-tal wall is 1 x 1 m at the origin (albedo 1). A 0.5 x 1 m strip to its right
+    // in its plane, facing its way, with its BSDF, is more relay wall.
+    let strip = |x: f32, rho: f32| {
+        edit(
+            "    <!-- L -->",
+            &format!(
+                r#"<shape type="rectangle"><transform name="to_world"><scale x="0.25" y="0.5" z="1"/><translate x="{x}"/></transform><bsdf type="diffuse"><float name="reflectance" value="{rho}"/></bsdf></shape>"#
+            ),
+        )
+    };
+    let s = parse_str(&strip(0.75, 1.0)).unwrap();
+    assert_eq!(s.objects.len(), 1, "only the L is left");
+    assert!(close(s.wall.center, Vec3::new(0.25, 0.0, 0.0)));
+    assert!(close(s.wall.axis_u, Vec3::new(1.5, 0.0, 0.0)));
+    assert!(close(s.wall.axis_v, Vec3::Y));
+    // The scan stays on the sensor's rectangle.
+    assert!(close(s.scan.center, Vec3::ZERO) && close(s.scan.axis_u, Vec3::X));
+    assert!(s.warnings.iter().any(|w| w.contains("extend it")));
+    // Another albedo, or a gap: a hidden object, the wall unchanged.
+    for t in [strip(0.75, 0.5), strip(0.8, 1.0)] {
+        let s = parse_str(&t).unwrap();
+        assert_eq!(s.objects.len(), 2);
+        assert!(close(s.wall.axis_u, Vec3::X) && close(s.wall.center, Vec3::ZERO));
+    }
 }

@@ -4,7 +4,7 @@
 use crate::error::{Error, Result};
 use quick_xml::events::{BytesStart, Event};
 use quick_xml::Reader;
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::path::Path;
 
 /// One attribute, its value already unescaped (and `$name`-substituted after [`parse`]).
@@ -64,9 +64,18 @@ impl Lines {
     }
 }
 
+/// The parsed file: its root element, the `<default>` names it declares (in document
+/// order) and the `$name`s it references.
+pub(crate) struct Parsed {
+    pub root: Node,
+    pub declared: Vec<String>,
+    pub referenced: HashSet<String>,
+}
+
 /// Parses `text` into its root element and applies `$name` substitution from the
 /// root's `<default>` children (which stay in the tree: the scene builder skips them).
-pub(crate) fn parse(text: &str, origin: &Path, defines: &[(String, String)]) -> Result<Node> {
+/// A define the file never references is the caller's to judge ([`unused_defines`]).
+pub(crate) fn parse(text: &str, origin: &Path, defines: &[(String, String)]) -> Result<Parsed> {
     let lines = Lines::new(text);
     let err = |pos: usize, msg: String| Error::line(origin, lines.line(pos), msg);
     let mut reader = Reader::from_str(text);
@@ -125,8 +134,51 @@ pub(crate) fn parse(text: &str, origin: &Path, defines: &[(String, String)]) -> 
         ));
     }
     let mut root = root.ok_or_else(|| Error::scene(origin, "no XML element in the file"))?;
-    substitute_defaults(&mut root, origin, defines)?;
-    Ok(root)
+    let (declared, referenced) = substitute_defaults(&mut root, origin, defines)?;
+    Ok(Parsed {
+        root,
+        declared,
+        referenced,
+    })
+}
+
+/// Mitsuba refuses a `-D name=value` whose `$name` the file never uses ("Found unused
+/// parameters"): the same error here, naming them and the file's own parameters.
+pub(crate) fn unused_defines(
+    parsed: &Parsed,
+    origin: &Path,
+    defines: &[(String, String)],
+) -> Result<()> {
+    let unused: Vec<String> = defines
+        .iter()
+        .filter(|(n, _)| !parsed.referenced.contains(n))
+        .map(|(n, v)| format!("-D {n}={v}"))
+        .collect();
+    if unused.is_empty() {
+        return Ok(());
+    }
+    let mut used: Vec<&str> = parsed.referenced.iter().map(String::as_str).collect();
+    used.sort_unstable();
+    let list = |v: &[&str]| {
+        if v.is_empty() {
+            "none".to_string()
+        } else {
+            v.iter()
+                .map(|n| format!("${n}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        }
+    };
+    let declared: Vec<&str> = parsed.declared.iter().map(String::as_str).collect();
+    Err(Error::scene(
+        origin,
+        format!(
+            "unused parameter(s) {}: the scene never uses them (Mitsuba refuses them too). It declares <default>s: {}; it uses: {}",
+            unused.join(", "),
+            list(&declared),
+            list(&used)
+        ),
+    ))
 }
 
 fn node(e: &BytesStart, start: usize, lines: &Lines, origin: &Path) -> Result<Node> {
@@ -174,8 +226,13 @@ fn node(e: &BytesStart, start: usize, lines: &Lines, origin: &Path) -> Result<No
 /// Mitsuba's `<default name="x" value="v"/>` (top level only) defines `$x` for every
 /// attribute value in the file. An undefined `$name` is an error. `defines` (the
 /// command line's `-D name=value`, as Mitsuba's) override or add to the defaults.
-fn substitute_defaults(root: &mut Node, origin: &Path, defines: &[(String, String)]) -> Result<()> {
+fn substitute_defaults(
+    root: &mut Node,
+    origin: &Path,
+    defines: &[(String, String)],
+) -> Result<(Vec<String>, HashSet<String>)> {
     let mut defs: HashMap<String, String> = HashMap::new();
+    let mut declared = Vec::new();
     for d in root.children.iter().filter(|c| c.tag == "default") {
         let (Some(name), Some(value)) = (d.attr("name"), d.attr("value")) else {
             return Err(Error::line(
@@ -198,6 +255,7 @@ fn substitute_defaults(root: &mut Node, origin: &Path, defines: &[(String, Strin
                 format!("<default>: '{name}' is not a valid parameter name"),
             ));
         }
+        declared.push(name.to_string());
         if defs.insert(name.to_string(), value.to_string()).is_some() {
             return Err(Error::line(
                 origin,
@@ -209,7 +267,9 @@ fn substitute_defaults(root: &mut Node, origin: &Path, defines: &[(String, Strin
     for (name, value) in defines {
         defs.insert(name.clone(), value.clone());
     }
-    substitute(root, &defs, origin, true)
+    let mut referenced = HashSet::new();
+    substitute(root, &defs, &mut referenced, origin, true)?;
+    Ok((declared, referenced))
 }
 
 fn is_ident(c: char) -> bool {
@@ -219,12 +279,13 @@ fn is_ident(c: char) -> bool {
 fn substitute(
     n: &mut Node,
     defs: &HashMap<String, String>,
+    referenced: &mut HashSet<String>,
     origin: &Path,
     is_root: bool,
 ) -> Result<()> {
     for a in &mut n.attrs {
         if a.value.contains('$') {
-            a.value = expand(&a.value, defs).map_err(|name| {
+            a.value = expand(&a.value, defs, referenced).map_err(|name| {
                 Error::line(
                     origin,
                     a.line,
@@ -239,7 +300,7 @@ fn substitute(
     for c in &mut n.children {
         // The defaults' own values are taken literally.
         if !(is_root && c.tag == "default") {
-            substitute(c, defs, origin, false)?;
+            substitute(c, defs, referenced, origin, false)?;
         }
     }
     Ok(())
@@ -247,7 +308,11 @@ fn substitute(
 
 /// Replaces each `$name` in `s`; `Err(name)` for an undefined one. A `$` not followed by
 /// a name is kept.
-fn expand(s: &str, defs: &HashMap<String, String>) -> std::result::Result<String, String> {
+fn expand(
+    s: &str,
+    defs: &HashMap<String, String>,
+    referenced: &mut HashSet<String>,
+) -> std::result::Result<String, String> {
     let mut out = String::with_capacity(s.len());
     let mut rest = s;
     while let Some(i) = rest.find('$') {
@@ -258,6 +323,7 @@ fn expand(s: &str, defs: &HashMap<String, String>) -> std::result::Result<String
             out.push('$');
         } else {
             let name = &after[..len];
+            referenced.insert(name.to_string());
             out.push_str(defs.get(name).ok_or_else(|| name.to_string())?);
         }
         rest = &after[len..];

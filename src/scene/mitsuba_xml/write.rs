@@ -13,10 +13,15 @@
 //!
 //! Refused, with the field named, before any file is written: a laser given by power
 //! (mitransient's projector has an irradiance, DESIGN §2), a laser spot of positive
-//! radius or standing on its target, a scan that is not the whole relay wall (the
-//! `nlos_capture_meter` scans its rectangle), a bounce filter mitransient cannot select
+//! radius or standing on its target, a scan area that is not an axis-aligned
+//! rectangle inside the relay wall, a bounce filter mitransient cannot select
 //! (it would read it as "off"), Russian roulette from the first bounce, per-vertex
 //! albedo, retroreflective objects.
+//!
+//! A relay wall larger than the scan area (the default scene's): mitransient's
+//! `nlos_capture_meter` scans its whole rectangle, so the file's relay wall is the
+//! scanned rectangle and the rest of the wall is written as up to four plain
+//! rectangles with the same BSDF (same geometry; the importer merges them back).
 //!
 //! Depths are the inverse of the importer's `mitransient_depth_to_bounces`: with laser
 //! sampling `max_depth = max_bounces`, without it `max_bounces + 1`; a bounce filter `f`
@@ -24,7 +29,7 @@
 
 use crate::error::{Error, Result};
 use crate::scene::{CaptureType, KernelSpec, LaserEmission, Reflectance, Scene};
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -52,12 +57,15 @@ fn v3(v: Vec3) -> String {
 pub fn write(scene: &Scene, xml: &Path) -> Result<Exported> {
     let mut warnings = Vec::new();
     let (wall, scan, laser) = (&scene.wall, &scene.scan, &scene.laser);
-    let close = |a: Vec3, b: Vec3| (a - b).length() <= 1e-6 * (1.0 + b.length());
-    if !(close(scan.center, wall.center)
-        && close(scan.axis_u, wall.axis_u)
-        && close(scan.axis_v, wall.axis_v))
-    {
-        return Err(refuse(xml, "scan", format!("mitransient's nlos_capture_meter scans its whole relay-wall rectangle; this scene scans {} x {} m of a {} x {} m wall (make them equal)", scan.axis_u.length(), scan.axis_v.length(), wall.axis_u.length(), wall.axis_v.length())));
+    let rest = wall_rest(scene, xml)?;
+    if !rest.is_empty() {
+        let t = &scene.render.techniques;
+        if t.hidden_geometry_sampling
+            && !t.hidden_geometry_includes_wall
+            && scene.render.max_bounces > 3
+        {
+            warnings.push("the wall outside the scan area is written as plain rectangles: with hidden-geometry sampling that leaves out the relay wall, mitransient counts multi-bounce paths through them that Umbra leaves out (three-bounce light is the same)".into());
+        }
     }
     let LaserEmission::Irradiance {
         irradiance,
@@ -248,17 +256,31 @@ pub fn write(scene: &Scene, xml: &Path) -> Result<Exported> {
     // The wall: Mitsuba's rectangle [-1, 1]² at z = 0, mapped so that local x spans
     // axis_u, local y axis_v, local z the wall's normal (its front).
     let (hu, hv, n, c) = (
-        wall.axis_u * 0.5,
-        wall.axis_v * 0.5,
+        scan.axis_u * 0.5,
+        scan.axis_v * 0.5,
         wall.normal(),
-        wall.center,
+        scan.center,
     );
+    for (i, r) in rest.iter().enumerate() {
+        let _ = write!(
+            s,
+            r#"    <shape type="rectangle" id="relay_wall_rest_{i}">
+        <transform name="to_world">
+            <matrix value="{}"/>
+        </transform>
+        <bsdf type="diffuse"><rgb name="reflectance" value="{rw}, {rw}, {rw}"/></bsdf>
+    </shape>
+"#,
+            matrix(r[0], r[1], n, r[2]),
+            rw = wall.albedo
+        );
+    }
     let f = &scene.film;
     let _ = write!(
         s,
         r#"    <shape type="rectangle" id="relay_wall">
         <transform name="to_world">
-            <matrix value="{} {} {} {}  {} {} {} {}  {} {} {} {}  0 0 0 1"/>
+            <matrix value="{}"/>
         </transform>
         <bsdf type="diffuse"><rgb name="reflectance" value="{rw}, {rw}, {rw}"/></bsdf>
         <sensor type="nlos_capture_meter">
@@ -279,18 +301,7 @@ pub fn write(scene: &Scene, xml: &Path) -> Result<Exported> {
     </shape>
 </scene>
 "#,
-        hu.x,
-        hv.x,
-        n.x,
-        c.x,
-        hu.y,
-        hv.y,
-        n.y,
-        c.y,
-        hu.z,
-        hv.z,
-        n.z,
-        c.z,
+        matrix(hu, hv, n, c),
         scene.detector.origin.x,
         scene.detector.origin.y,
         scene.detector.origin.z,
@@ -320,6 +331,63 @@ pub fn write(scene: &Scene, xml: &Path) -> Result<Exported> {
         objs,
         warnings,
     })
+}
+
+/// Mitsuba's row-major 4x4 `<matrix>` mapping local x, y, z to `hu`, `hv`, `n` and the
+/// origin to `c`.
+fn matrix(hu: Vec3, hv: Vec3, n: Vec3, c: Vec3) -> String {
+    format!(
+        "{} {} {} {}  {} {} {} {}  {} {} {} {}  0 0 0 1",
+        hu.x, hv.x, n.x, c.x, hu.y, hv.y, n.y, c.y, hu.z, hv.z, n.z, c.z
+    )
+}
+
+/// The relay wall outside the scan area, as up to four rectangles `(hu, hv, centre)`
+/// (half edges and centre, for [`matrix`]): left and right strips of full height, then
+/// bottom and top strips as wide as the scan. mitransient's `nlos_capture_meter` scans
+/// its whole rectangle, so the file's relay wall is the scanned rectangle and these
+/// (same BSDF) are the rest of the wall; Umbra's importer merges them back. Refused,
+/// naming the field, when the scan is not an axis-aligned rectangle inside the wall.
+fn wall_rest(scene: &Scene, xml: &Path) -> Result<Vec<[Vec3; 3]>> {
+    let (wall, scan) = (&scene.wall, &scene.scan);
+    let (u, v) = (wall.axis_u.as_dvec3(), wall.axis_v.as_dvec3());
+    let (uh, vh) = (u.normalize(), v.normalize());
+    let n = wall.normal().as_dvec3();
+    let d = (scan.center - wall.center).as_dvec3();
+    let (su, sv) = (scan.axis_u.as_dvec3(), scan.axis_v.as_dvec3());
+    let scale = u.length() + v.length();
+    let tol = 1e-6 * scale;
+    let parallel = |a: DVec3, b: DVec3| a.normalize_or_zero().dot(b) >= 1.0 - 1e-9;
+    if !(parallel(su, uh) && parallel(sv, vh) && d.dot(n).abs() <= tol) {
+        return Err(refuse(xml, "scan", "mitransient's nlos_capture_meter scans its whole relay-wall rectangle: the scan area must lie in the wall's plane with scan.axis_u along wall.axis_u and scan.axis_v along wall.axis_v (then the rest of the wall is written as plain rectangles)"));
+    }
+    if uh.dot(vh).abs() > 1e-6 {
+        return Err(refuse(xml, "wall", "the relay wall's axes are not perpendicular: the rest of the wall around the scan area cannot be written as rectangles"));
+    }
+    let (hw, hh) = (u.length() / 2.0, v.length() / 2.0);
+    let (cs, ct) = (d.dot(uh), d.dot(vh));
+    let (a, b) = (su.length() / 2.0, sv.length() / 2.0);
+    let (s0, s1, t0, t1) = (cs - a, cs + a, ct - b, ct + b);
+    if s0 < -hw - tol || s1 > hw + tol || t0 < -hh - tol || t1 > hh + tol {
+        return Err(refuse(xml, "scan", format!("the scan area ({:.4} x {:.4} m at {}) reaches outside the {:.4} x {:.4} m relay wall: make scan.size and scan.center fit in wall.size", 2.0 * a, 2.0 * b, scan.center, 2.0 * hw, 2.0 * hh)));
+    }
+    let c = wall.center.as_dvec3();
+    let mut out = Vec::new();
+    let mut strip = |x0: f64, x1: f64, y0: f64, y1: f64| {
+        if x1 - x0 > tol && y1 - y0 > tol {
+            let centre = c + uh * ((x0 + x1) / 2.0) + vh * ((y0 + y1) / 2.0);
+            out.push([
+                (uh * ((x1 - x0) / 2.0)).as_vec3(),
+                (vh * ((y1 - y0) / 2.0)).as_vec3(),
+                centre.as_vec3(),
+            ]);
+        }
+    };
+    strip(-hw, s0, -hh, hh);
+    strip(s1, hw, -hh, hh);
+    strip(s0, s1, -hh, t0);
+    strip(s0, s1, t1, hh);
+    Ok(out)
 }
 
 /// An XML id from an object's name: letters, digits, `_` and `-` kept, the rest `_`,

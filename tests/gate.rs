@@ -178,92 +178,42 @@ fn every_cli_entry_point_follows_the_table() {
                 .unwrap();
         ndarray_npy::write_npy(dir.join("m.npy"), &ramp).unwrap();
         let m = c.model;
-        let verdict = |(ok, err): (bool, String)| (!ok).then_some(err);
-        let render = umbra(
-            &[
+        // With a target, gradcheck and fit the forward render runs first: its refusal,
+        // else the gradient's.
+        let after_render = c.render.or(c.gradient);
+        let common = ["--model", m, "--spp", "4"];
+        let entries: [(&str, Vec<&str>, Option<&str>); 5] = [
+            (
                 "render",
-                s,
-                "--model",
-                m,
-                "--spp",
-                "4",
-                "-q",
-                "--no-preview",
-                "-o",
-                "h.npy",
-            ],
-            &dir,
-        );
-        agrees(c.name, "umbra render", verdict(render), c.render);
-        let grad = umbra(
-            &[
+                vec!["-q", "--no-preview", "-o", "h.npy"],
+                c.render,
+            ),
+            (
                 "grad",
-                s,
-                "--model",
-                m,
-                "--spp",
-                "4",
-                "--adjoint",
-                "m.npy",
-                "-o",
-                "g.npz",
-            ],
-            &dir,
-        );
-        agrees(c.name, "umbra grad", verdict(grad), c.gradient);
-        let grad_t = umbra(
-            &[
-                "grad", s, "--model", m, "--spp", "4", "--target", "m.npy", "-o", "g.npz",
-            ],
-            &dir,
-        );
-        // With a target the forward render runs first: its refusal, else the gradient's.
-        agrees(
-            c.name,
-            "umbra grad --target",
-            verdict(grad_t),
-            c.render.or(c.gradient),
-        );
-        let check = umbra(
-            &[
+                vec!["--adjoint", "m.npy", "-o", "g.npz"],
+                c.gradient,
+            ),
+            (
+                "grad",
+                vec!["--target", "m.npy", "-o", "g.npz"],
+                after_render,
+            ),
+            (
                 "gradcheck",
-                s,
-                "--model",
-                m,
-                "--spp",
-                "4",
-                "--params",
-                "1",
-                "--tolerance",
-                "1e9",
-            ],
-            &dir,
-        );
-        agrees(
-            c.name,
-            "umbra gradcheck",
-            verdict(check),
-            c.render.or(c.gradient),
-        );
-        let fit = umbra(
-            &[
+                vec!["--params", "1", "--tolerance", "1e9"],
+                after_render,
+            ),
+            (
                 "fit",
-                s,
-                "--model",
-                m,
-                "--spp",
-                "4",
-                "--measured",
-                "m.npy",
-                "--iters",
-                "1",
-                "-q",
-                "-o",
-                "fit",
-            ],
-            &dir,
-        );
-        agrees(c.name, "umbra fit", verdict(fit), c.render.or(c.gradient));
+                vec!["--measured", "m.npy", "--iters", "1", "-q", "-o", "fit"],
+                after_render,
+            ),
+        ];
+        for (cmd, extra, want) in entries {
+            let args: Vec<&str> = [cmd, s].into_iter().chain(common).chain(extra).collect();
+            let (ok, err) = umbra(&args, &dir);
+            agrees(c.name, &args.join(" "), (!ok).then_some(err), want);
+        }
     }
     std::fs::remove_dir_all(&root).ok();
 }

@@ -38,6 +38,13 @@ CASES = [
 ]
 
 
+def write_scene(tmp: Path, toml: str):
+    (tmp / "sq.obj").write_text(SQUARE)
+    path = tmp / "scene.toml"
+    path.write_text(toml)
+    return path, umbra.load_scene(path)
+
+
 def cli_error(exe: str, args: list, cwd: Path):
     r = subprocess.run([exe, *args], capture_output=True, text=True, cwd=cwd)
     if r.returncode == 0:
@@ -59,10 +66,7 @@ def py_error(f):
 def test_python_refuses_what_the_cli_refuses(tmp_path, umbra_bin, name, toml, model,
                                              render_refused, grad_refused):
     exe = require_umbra(umbra_bin)
-    (tmp_path / "sq.obj").write_text(SQUARE)
-    path = tmp_path / "scene.toml"
-    path.write_text(toml)
-    scene = umbra.load_scene(path)
+    path, scene = write_scene(tmp_path, toml)
     adj = np.ones(scene.shape, np.float32)
     np.save(tmp_path / "adj.npy", adj)
 
@@ -84,10 +88,7 @@ def test_python_refuses_what_the_cli_refuses(tmp_path, umbra_bin, name, toml, mo
 def test_fit_and_torch_refuse_with_the_same_message(tmp_path, umbra_bin, name, toml, model,
                                                     render_refused, grad_refused):
     exe = require_umbra(umbra_bin)
-    (tmp_path / "sq.obj").write_text(SQUARE)
-    path = tmp_path / "scene.toml"
-    path.write_text(toml)
-    scene = umbra.load_scene(path)
+    path, scene = write_scene(tmp_path, toml)
     measured = np.full(scene.shape, 1e-3, np.float32)
     np.save(tmp_path / "m.npy", measured)
     expected = cli_error(exe, ["render", str(path), "--model", model, "-q", "--no-preview",

@@ -17,20 +17,20 @@ use umbra::scene::Scene;
 use umbra::transport::gate::Overrides;
 use umbra::transport::RenderOptions;
 
-/// The option names, in the order `umbra render --help` lists them.
+/// The option names (the stubs' keyword order).
 pub const NAMES: &[&str] = &[
     "model",
+    "visibility",
+    "subdivision",
+    "max_error",
     "spp",
     "seed",
+    "threads",
     "max_depth",
     "laser_sampling",
     "hidden_geometry_sampling",
     "bsdf_sampling",
-    "visibility",
-    "subdivision",
-    "max_error",
     "visible_legs",
-    "threads",
 ];
 
 /// A scene with the options applied, the options as the renderer takes them, and the

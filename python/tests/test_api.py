@@ -89,7 +89,7 @@ def test_bad_options_name_the_argument():
         umbra.render(s, spp=-3)
     with pytest.raises(umbra.UmbraError, match="^spp: "):
         umbra.render(s, spp="many")
-    with pytest.raises(umbra.UmbraError, match="max_depth: 2 is not -1"):
+    with pytest.raises(umbra.UmbraError, match="max_depth: must be -1 or >= 3 bounces, got 2"):
         umbra.grad(s, np.zeros(tuple(s.shape), np.float32), max_depth=2)
     with pytest.raises(umbra.UmbraError, match="^laser_sampling: "):
         umbra.render(s, laser_sampling="yes")

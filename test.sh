@@ -21,7 +21,7 @@ fi
 export DRJIT_LIBLLVM_PATH="${DRJIT_LIBLLVM_PATH:-$(ls /usr/lib/x86_64-linux-gnu/libLLVM.so.19* | head -n1)}"
 
 # (find_spec, not import: mitransient refuses to import before a Mitsuba variant is set)
-if ! .venv/bin/python -c "import importlib.util as u, sys; sys.exit(any(u.find_spec(m) is None for m in ['mitsuba', 'drjit', 'mitransient', 'numpy', 'pytest', 'h5py', 'maturin']))" 2>/dev/null; then
+if ! .venv/bin/python -c "import importlib.util as u, sys; sys.exit(any(u.find_spec(m) is None for m in ['mitsuba', 'drjit', 'mitransient', 'numpy', 'pytest', 'h5py', 'maturin', 'mypy']))" 2>/dev/null; then
     echo "== creating .venv with the peers"
     python3 -m venv .venv
     .venv/bin/pip install -q --upgrade pip

@@ -187,3 +187,89 @@ proptest! {
         }
     }
 }
+
+/// A `.npy` whose header claims far more data than the file holds is refused by its
+/// header, naming the file and both sizes, by every command that reads one (it used to
+/// abort allocating terabytes); `gradcheck --tolerance nan` is refused (it used to pass).
+#[test]
+fn npy_headers_are_checked_against_the_file_and_nan_tolerance_refused() {
+    let dir = common::tmp_dir("npy-header");
+    let scene = common::SceneSpec::default().write(&dir);
+    let s = scene.to_str().unwrap();
+    let mut header =
+        "{'descr': '<f4', 'fortran_order': False, 'shape': (1000000, 1000000, 1000000), }"
+            .to_string();
+    while !(10 + header.len() + 1).is_multiple_of(64) {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend((header.len() as u16).to_le_bytes());
+    bytes.extend(header.as_bytes());
+    bytes.extend([0u8; 64]);
+    std::fs::write(dir.join("huge.npy"), bytes).unwrap();
+    let run = |args: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_umbra"))
+            .args(args)
+            .current_dir(&dir)
+            .output()
+            .unwrap()
+    };
+    for args in [
+        vec!["grad", s, "--adjoint", "huge.npy", "-o", "g.npz"],
+        vec!["grad", s, "--target", "huge.npy", "-o", "g.npz"],
+        vec!["fit", s, "--measured", "huge.npy", "-o", "fit", "-q"],
+    ] {
+        let out = run(&args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+        assert!(
+            err.contains("huge.npy") && err.contains("truncated .npy"),
+            "{args:?}: {err}"
+        );
+    }
+    let out = run(&["gradcheck", s, "--tolerance", "nan", "--params", "1"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("--tolerance: must be a number > 0"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The output's format and folder are checked before the render (they used to fail after
+/// the work was done), and a written `.npy` leaves no temporary file behind.
+#[test]
+fn render_output_is_checked_before_the_work_and_written_atomically() {
+    let dir = common::tmp_dir("output-check");
+    let scene = common::SceneSpec::default().write(&dir);
+    let s = scene.to_str().unwrap();
+    std::fs::write(dir.join("plain_file"), "x").unwrap();
+    let run = |scene: &str, out: &str| {
+        Command::new(env!("CARGO_BIN_EXE_umbra"))
+            .args(["render", scene, "-o", out, "--no-preview", "-q"])
+            .current_dir(&dir)
+            .output()
+            .unwrap()
+    };
+    for (out, says) in [
+        ("h.txt", "unknown output format '.txt'"),
+        ("plain_file/h.npy", "plain_file"),
+        (".", "is a folder"),
+    ] {
+        // The output is refused first: even a scene that is not there is not reached.
+        let o = run("no_such_scene.toml", out);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{out}: {err}");
+        assert!(
+            err.contains(says) && !err.contains("no_such_scene"),
+            "{out}: {err}"
+        );
+    }
+    let o = run(s, "sub/h.npy");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let left: Vec<_> = std::fs::read_dir(dir.join("sub"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(left, ["h.npy"]);
+    std::fs::remove_dir_all(&dir).ok();
+}

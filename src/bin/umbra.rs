@@ -160,6 +160,8 @@ fn load_scene(path: Option<&Path>, defines: &[String]) -> umbra::Result<Scene> {
 }
 
 fn render(args: RenderArgs) -> umbra::Result<()> {
+    // The output's format and folder first: a typo must not cost a render.
+    umbra::io::check_output(&args.output)?;
     let mut scene = load_scene(args.scene.as_deref(), &args.define)?;
     for w in &scene.warnings {
         eprintln!("warning: {w}");

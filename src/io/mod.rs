@@ -3,6 +3,7 @@
 pub mod exr_out;
 pub mod lct;
 pub mod measured;
+mod npy_header;
 pub mod plot;
 pub mod preview;
 pub mod ytal;
@@ -53,17 +54,69 @@ pub fn write_transient(path: &Path, t: &Transient) -> Result<()> {
     }
 }
 
-/// `.npy`, float32, shape `(sy, sx, T)` or `(sy, sx, ly, lx, T)`, C order.
+/// `.npy`, float32, shape `(sy, sx, T)` or `(sy, sx, ly, lx, T)`, C order. Written to a
+/// temporary file in the same folder and renamed over `path`: an interrupted write never
+/// leaves a partial file, nor loses the previous one.
 pub fn write_npy(path: &Path, t: &Transient) -> Result<()> {
-    let arr = ArrayD::from_shape_vec(IxDyn(&t.shape), t.data.clone())
+    let arr = ndarray::ArrayViewD::from_shape(IxDyn(&t.shape), &t.data)
         .map_err(|e| Error::Invalid(format!("transient shape: {e}")))?;
-    let file = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
-    ndarray_npy::WriteNpyExt::write_npy(&arr, std::io::BufWriter::new(file))
-        .map_err(|e| Error::Invalid(format!("{}: writing npy: {e}", path.display())))
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy())
+        .unwrap_or_default();
+    let tmp = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
+    let written = std::fs::File::create(&tmp)
+        .map_err(|e| Error::io(&tmp, e))
+        .and_then(|file| {
+            let mut w = std::io::BufWriter::new(file);
+            ndarray_npy::WriteNpyExt::write_npy(&arr, &mut w)
+                .map_err(|e| Error::Invalid(format!("{}: writing npy: {e}", path.display())))?;
+            let file = w
+                .into_inner()
+                .map_err(|e| Error::io(&tmp, e.into_error()))?;
+            file.sync_all().map_err(|e| Error::io(&tmp, e))
+        })
+        .and_then(|()| std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e)));
+    if written.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    written
+}
+
+/// Checks, before any work, that `path` can take a transient: a known extension, and a
+/// folder that exists or can be made (not a file), the path itself not a folder.
+pub fn check_output(path: &Path) -> Result<()> {
+    match path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .as_deref()
+    {
+        Some("npy" | "exr" | "hdf5" | "h5") | None => {}
+        Some(other) => {
+            return Err(Error::Invalid(format!(
+                "{}: unknown output format '.{other}' (use .npy, .exr or .hdf5)",
+                path.display()
+            )))
+        }
+    }
+    if path.is_dir() {
+        return Err(Error::Invalid(format!(
+            "{}: is a folder; give a file name (e.g. {}/transient.npy)",
+            path.display(),
+            path.display()
+        )));
+    }
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    }
+    Ok(())
 }
 
 /// Reads a `.npy` of float32 or float64 values.
 pub fn read_npy(path: &Path) -> Result<Transient> {
+    // The header must announce exactly the file's data before anything is allocated.
+    npy_header::check(path)?;
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let reader = std::io::BufReader::new(file);
     let arr: ArrayD<f32> = match ndarray_npy::ReadNpyExt::read_npy(reader) {

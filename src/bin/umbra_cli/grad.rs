@@ -135,6 +135,12 @@ pub fn gradcheck(args: GradcheckArgs) -> umbra::Result<()> {
     let mut scene = load_scene(Some(&args.scene), &args.define)?;
     let mut opts = args.flags.overrides().apply(&mut scene)?;
     resolve_auto(&scene, &mut opts)?;
+    if !(args.tolerance.is_finite() && args.tolerance > 0.0) {
+        return Err(umbra::Error::Invalid(format!(
+            "--tolerance: must be a number > 0, got {}",
+            args.tolerance
+        )));
+    }
     if args.h.iter().any(|h| !(h.is_finite() && *h > 0.0)) {
         return Err(umbra::Error::Invalid("--h: steps must be > 0".into()));
     }

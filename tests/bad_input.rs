@@ -273,3 +273,26 @@ fn render_output_is_checked_before_the_work_and_written_atomically() {
     assert_eq!(left, ["h.npy"]);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `fit` counts of 0 are refused naming the option (`--spp 0` ran as 1, `--iters 0` as
+/// 4, `--target-spp 0` rendered a NaN target).
+#[test]
+fn fit_refuses_zero_counts() {
+    let dir = common::tmp_dir("fit-zero");
+    let scene = common::SceneSpec::default().write(&dir);
+    let s = scene.to_str().unwrap();
+    for flag in ["--spp", "--iters", "--target-spp"] {
+        let out = Command::new(env!("CARGO_BIN_EXE_umbra"))
+            .args(["fit", s, flag, "0", "-q", "-o", "fit"])
+            .current_dir(&dir)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{flag}: {err}");
+        assert!(
+            err.contains(&format!("{flag}: must be at least 1")),
+            "{flag}: {err}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

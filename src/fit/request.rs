@@ -273,6 +273,21 @@ pub fn run(
     log: &mut dyn FnMut(&str),
 ) -> Result<FitOutcome> {
     let n = |name: &str| req.front.name(name);
+    // Counts that would silently run as something else (spp 0 ran as 1, iters 0 as 4,
+    // a 0-spp target was all NaN).
+    let target_spp = match req.measurement {
+        Measurement::Demo { target_spp } => Some(target_spp),
+        _ => None,
+    };
+    for (name, value) in [
+        ("spp", Some(req.spp as u64)),
+        ("iters", req.iters),
+        ("target_spp", target_spp.map(u64::from)),
+    ] {
+        if value == Some(0) {
+            return Err(Error::Invalid(format!("{}: must be at least 1", n(name))));
+        }
+    }
     let mut schedule = req.schedule.clone().unwrap_or_else(default_schedule);
     if schedule.stages.is_empty() {
         return Err(Error::Invalid("the schedule has no stage".into()));

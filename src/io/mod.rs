@@ -16,65 +16,84 @@ use std::path::Path;
 /// Writes a render of `scene`; the format follows the extension: `.hdf5` / `.h5` (y-tal's
 /// capture format, which needs the scene's geometry), else as [`write_transient`].
 pub fn write_capture(path: &Path, t: &Transient, scene: &crate::scene::Scene) -> Result<()> {
-    if is_hdf5(path) {
-        ytal::write_ytal(path, t, scene)
-    } else {
-        write_transient(path, t)
+    match OutputFormat::of(path)? {
+        OutputFormat::Hdf5 => ytal::write_ytal(path, t, scene),
+        _ => write_transient(path, t),
     }
 }
 
-fn is_hdf5(path: &Path) -> bool {
-    path.extension()
-        .and_then(|e| e.to_str())
-        .is_some_and(|e| e.eq_ignore_ascii_case("hdf5") || e.eq_ignore_ascii_case("h5"))
+/// An output file's format, from its extension (none: `.npy`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum OutputFormat {
+    Npy,
+    Exr,
+    Hdf5,
+}
+
+impl OutputFormat {
+    fn of(path: &Path) -> Result<OutputFormat> {
+        match path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase)
+            .as_deref()
+        {
+            Some("npy") | None => Ok(OutputFormat::Npy),
+            Some("exr") => Ok(OutputFormat::Exr),
+            Some("hdf5" | "h5") => Ok(OutputFormat::Hdf5),
+            Some(other) => Err(Error::Invalid(format!(
+                "{}: unknown output format '.{other}' (use .npy, .exr or .hdf5)",
+                path.display()
+            ))),
+        }
+    }
 }
 
 /// Writes a transient; the format follows the extension (`.npy` default, `.exr`; `.hdf5`
 /// needs the scene: [`write_capture`]).
 pub fn write_transient(path: &Path, t: &Transient) -> Result<()> {
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    }
-    match path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase)
-        .as_deref()
-    {
-        Some("exr") => exr_out::write(path, t),
-        Some("npy") | None => write_npy(path, t),
-        Some("hdf5" | "h5") => Err(Error::Invalid(format!(
+    match OutputFormat::of(path)? {
+        OutputFormat::Exr => write_via_temp(path, |tmp| exr_out::write(tmp, t)),
+        OutputFormat::Npy => write_npy(path, t),
+        OutputFormat::Hdf5 => Err(Error::Invalid(format!(
             "{}: a y-tal .hdf5 capture needs the scene's geometry (io::write_capture)",
-            path.display()
-        ))),
-        Some(other) => Err(Error::Invalid(format!(
-            "{}: unknown output format '.{other}' (use .npy, .exr or .hdf5)",
             path.display()
         ))),
     }
 }
 
-/// `.npy`, float32, shape `(sy, sx, T)` or `(sy, sx, ly, lx, T)`, C order. Written to a
-/// temporary file in the same folder and renamed over `path`: an interrupted write never
-/// leaves a partial file, nor loses the previous one.
+/// `.npy`, float32, shape `(sy, sx, T)` or `(sy, sx, ly, lx, T)`, C order, written
+/// through [`write_via_temp`].
 pub fn write_npy(path: &Path, t: &Transient) -> Result<()> {
     let arr = ndarray::ArrayViewD::from_shape(IxDyn(&t.shape), &t.data)
         .map_err(|e| Error::Invalid(format!("transient shape: {e}")))?;
+    write_via_temp(path, |tmp| {
+        let file = std::fs::File::create(tmp).map_err(|e| Error::io(tmp, e))?;
+        let mut w = std::io::BufWriter::new(file);
+        ndarray_npy::WriteNpyExt::write_npy(&arr, &mut w)
+            .map_err(|e| Error::Invalid(format!("{}: writing npy: {e}", path.display())))?;
+        std::io::Write::flush(&mut w).map_err(|e| Error::io(tmp, e))
+    })
+}
+
+/// Writes an output file atomically: `write` fills a temporary file in `path`'s folder
+/// (made if missing), which is synced and renamed over `path`. An interrupted write never
+/// leaves a partial file, nor loses the previous one; on failure the temporary file is
+/// removed. Every transient writer (npy, EXR, y-tal HDF5) goes through it.
+pub fn write_via_temp(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    }
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy())
         .unwrap_or_default();
     let tmp = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
-    let written = std::fs::File::create(&tmp)
-        .map_err(|e| Error::io(&tmp, e))
-        .and_then(|file| {
-            let mut w = std::io::BufWriter::new(file);
-            ndarray_npy::WriteNpyExt::write_npy(&arr, &mut w)
-                .map_err(|e| Error::Invalid(format!("{}: writing npy: {e}", path.display())))?;
-            let file = w
-                .into_inner()
-                .map_err(|e| Error::io(&tmp, e.into_error()))?;
-            file.sync_all().map_err(|e| Error::io(&tmp, e))
+    let written = write(&tmp)
+        .and_then(|()| {
+            std::fs::File::open(&tmp)
+                .and_then(|f| f.sync_all())
+                .map_err(|e| Error::io(&tmp, e))
         })
         .and_then(|()| std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e)));
     if written.is_err() {
@@ -86,20 +105,7 @@ pub fn write_npy(path: &Path, t: &Transient) -> Result<()> {
 /// Checks, before any work, that `path` can take a transient: a known extension, and a
 /// folder that exists or can be made (not a file), the path itself not a folder.
 pub fn check_output(path: &Path) -> Result<()> {
-    match path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase)
-        .as_deref()
-    {
-        Some("npy" | "exr" | "hdf5" | "h5") | None => {}
-        Some(other) => {
-            return Err(Error::Invalid(format!(
-                "{}: unknown output format '.{other}' (use .npy, .exr or .hdf5)",
-                path.display()
-            )))
-        }
-    }
+    OutputFormat::of(path)?;
     if path.is_dir() {
         return Err(Error::Invalid(format!(
             "{}: is a folder; give a file name (e.g. {}/transient.npy)",
@@ -115,19 +121,17 @@ pub fn check_output(path: &Path) -> Result<()> {
 
 /// Reads a `.npy` of float32 or float64 values.
 pub fn read_npy(path: &Path) -> Result<Transient> {
-    // The header must announce exactly the file's data before anything is allocated.
-    npy_header::check(path)?;
+    // The header must announce exactly the file's data before anything is allocated;
+    // it also says which of the two dtypes to read.
+    let header = npy_header::check(path)?;
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let reader = std::io::BufReader::new(file);
-    let arr: ArrayD<f32> = match ndarray_npy::ReadNpyExt::read_npy(reader) {
-        Ok(a) => a,
-        Err(_) => {
-            let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-            let a: ArrayD<f64> =
-                ndarray_npy::ReadNpyExt::read_npy(std::io::BufReader::new(file))
-                    .map_err(|e| Error::scene(path, format!("not a float32/float64 .npy: {e}")))?;
-            a.mapv(|v| v as f32)
-        }
+    let bad = |e: ndarray_npy::ReadNpyError| Error::scene(path, format!("reading .npy: {e}"));
+    let arr: ArrayD<f32> = if header.item_bytes == 4 {
+        ndarray_npy::ReadNpyExt::read_npy(reader).map_err(bad)?
+    } else {
+        let a: ArrayD<f64> = ndarray_npy::ReadNpyExt::read_npy(reader).map_err(bad)?;
+        a.mapv(|v| v as f32)
     };
     let shape = arr.shape().to_vec();
     let data = arr.as_standard_layout().iter().copied().collect();

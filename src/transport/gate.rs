@@ -36,7 +36,7 @@ pub enum Pass {
 /// Checks that `opts` can run `scene` in `pass`: the one place such combinations are
 /// refused (see the module docs for the table).
 pub fn check(scene: &Scene, opts: &RenderOptions, pass: Pass) -> Result<()> {
-    check_values(scene, opts)?;
+    check_values(scene.render.max_bounces, opts)?;
     check_reflectance(scene, opts.model)?;
     let t = &scene.render.techniques;
     let point_spot = scene.laser.spot_radius <= 0.0;
@@ -61,8 +61,9 @@ pub fn check(scene: &Scene, opts: &RenderOptions, pass: Pass) -> Result<()> {
     Err(Error::Invalid(problem.into()))
 }
 
-/// The option values every model relies on.
-fn check_values(scene: &Scene, opts: &RenderOptions) -> Result<()> {
+/// The option values every model relies on (also [`Overrides::apply`]'s check, so a bad
+/// flag is refused before any work).
+fn check_values(max_bounces: u32, opts: &RenderOptions) -> Result<()> {
     let bad = |msg: String| Err(Error::Invalid(msg));
     if opts.spp == 0 {
         return bad("spp: must be at least 1".into());
@@ -76,10 +77,9 @@ fn check_values(scene: &Scene, opts: &RenderOptions) -> Result<()> {
     if !(opts.max_error.is_finite() && opts.max_error > 0.0) {
         return bad(format!("max_error: must be > 0, got {}", opts.max_error));
     }
-    if scene.render.max_bounces < 3 {
+    if max_bounces < 3 {
         return bad(format!(
-            "max_depth: NLOS paths need at least 3 bounces, got {}",
-            scene.render.max_bounces
+            "max_depth: NLOS paths need at least 3 bounces, got {max_bounces}"
         ));
     }
     Ok(())
@@ -133,8 +133,8 @@ pub struct Overrides {
 }
 
 impl Overrides {
-    /// Writes the overrides into `scene.render` (each value checked, the message naming
-    /// the option) and returns the render options that follow.
+    /// Writes the overrides into `scene.render` and returns the render options that
+    /// follow, checked by the gate's own value checks (the message naming the option).
     pub fn apply(&self, scene: &mut Scene) -> Result<RenderOptions> {
         self.apply_to(&mut scene.render)
     }
@@ -151,8 +151,8 @@ impl Overrides {
         }
         if let Some(s) = self.spp {
             r.spp = match u32::try_from(s) {
-                Ok(s) if s >= 1 => s,
-                _ => {
+                Ok(s) => s,
+                Err(_) => {
                     return bad(format!(
                         "spp: must be an integer in [1, {}], got {s}",
                         u32::MAX
@@ -184,19 +184,11 @@ impl Overrides {
                 }
             };
         }
-        if let Some(s) = self.subdivision {
-            if !(s.is_finite() && s > 0.0) {
-                return bad(format!("subdivision: must be > 0, got {s}"));
-            }
-            r.subdivision = s;
-        }
-        if let Some(e) = self.max_error {
-            if !(e.is_finite() && e > 0.0) {
-                return bad(format!("max_error: must be > 0, got {e}"));
-            }
-            r.max_error = e;
-        }
+        r.subdivision = self.subdivision.unwrap_or(r.subdivision);
+        r.max_error = self.max_error.unwrap_or(r.max_error);
         r.visible_legs = self.visible_legs.unwrap_or(r.visible_legs);
-        Ok(RenderOptions::from_settings(r))
+        let opts = RenderOptions::from_settings(r);
+        check_values(r.max_bounces, &opts)?;
+        Ok(opts)
     }
 }

@@ -66,21 +66,10 @@ pub fn write_ytal(path: &Path, t: &Transient, scene: &Scene) -> Result<()> {
             t.data.len()
         )));
     }
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    }
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy())
-        .unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
-    let result = write_file(&tmp, t, scene)
-        .map_err(|e| Error::Invalid(format!("{}: writing HDF5: {e}", path.display())))
-        .and_then(|()| std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e)));
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
+    crate::io::write_via_temp(path, |tmp| {
+        write_file(tmp, t, scene)
+            .map_err(|e| Error::Invalid(format!("{}: writing HDF5: {e}", path.display())))
+    })
 }
 
 /// The f64 nearest the shortest decimal that reads back as `v` (0.01f32 -> 0.01, not

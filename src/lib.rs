@@ -15,6 +15,7 @@ pub mod io;
 pub mod recon;
 pub mod rng;
 pub mod scene;
+pub mod threads;
 pub mod transport;
 
 pub use error::{Error, Result};

@@ -296,3 +296,74 @@ fn fit_refuses_zero_counts() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A deeply nested XML (40,000 elements) is refused by its depth, naming the file and
+/// line; it used to overflow the stack (the CLI aborted, Python segfaulted).
+#[test]
+fn deeply_nested_xml_is_refused() {
+    let dir = common::tmp_dir("deep-xml");
+    let deep = format!(
+        "<scene version=\"3.0.0\">{}{}</scene>",
+        "<a>".repeat(40_000),
+        "</a>".repeat(40_000)
+    );
+    let path = dir.join("deep.xml");
+    std::fs::write(&path, deep).unwrap();
+    let e = umbra::Scene::load(&path).unwrap_err().to_string();
+    assert!(
+        e.contains("deep.xml:1: elements nested more than 64 deep"),
+        "{e}"
+    );
+    let out = Command::new(env!("CARGO_BIN_EXE_umbra"))
+        .args(["render", path.to_str().unwrap(), "-o", "x.npy", "-q"])
+        .current_dir(&dir)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("nested more than 64 deep"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// A malformed face line is refused with its line (it was half read); a binary file
+/// given as a mesh (`/dev/zero` read 4 GB before running out of memory) is refused at
+/// its first NUL byte; a TOML cut after `albedo =` says so (the message was empty).
+#[test]
+fn malformed_faces_binary_meshes_and_truncated_toml() {
+    let dir = common::tmp_dir("bad-mesh");
+    let spec = SceneSpec {
+        objects: vec![(
+            "v 0 0 0.5\nv 0.2 0 0.5\nv 0 0.2 0.5\nf 1/2/3/4 2// 3/x\n".into(),
+            0.5,
+            "lambertian",
+        )],
+        ..SceneSpec::default()
+    };
+    let path = spec.write(&dir);
+    let e = umbra::Scene::load(&path).unwrap_err().to_string();
+    assert!(
+        e.contains("obj0.obj:4: face vertex '1/2/3/4' has more than v/vt/vn"),
+        "{e}"
+    );
+
+    let toml = std::fs::read_to_string(&path).unwrap();
+    std::fs::write(
+        &path,
+        toml.replace("file = \"obj0.obj\"", "file = \"/dev/zero\""),
+    )
+    .unwrap();
+    let e = umbra::Scene::load(&path).unwrap_err().to_string();
+    assert!(
+        e.contains("/dev/zero: is not an OBJ mesh: it holds binary data"),
+        "{e}"
+    );
+
+    let cut = &toml[..toml.find("albedo = ").unwrap() + "albedo =".len()];
+    std::fs::write(&path, cut).unwrap();
+    let e = umbra::Scene::load(&path).unwrap_err().to_string();
+    assert!(
+        e.ends_with("the file ends where a value was expected (truncated?)"),
+        "{e}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

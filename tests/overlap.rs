@@ -78,6 +78,6 @@ fn ordinary_scenes_load_without_the_warning() {
     assert!(warnings(&spec, "overlap-none").is_empty());
     let d = umbra::scene::default::default_scene()
         .unwrap()
-        .with_overlap_warnings();
+        .with_load_warnings();
     assert!(d.warnings.is_empty(), "{:?}", d.warnings);
 }

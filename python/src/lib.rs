@@ -129,10 +129,8 @@ pub fn run_interruptible<T: Send>(
     work: impl FnOnce(&Arc<Progress>) -> umbra::Result<T> + Send,
 ) -> PyResult<T> {
     let progress = Arc::new(Progress::default());
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads.unwrap_or(0))
-        .build()
-        .map_err(|e| UmbraError::new_err(format!("threads: {e}")))?;
+    let pool =
+        umbra::threads::pool(threads, "threads").map_err(|e| UmbraError::new_err(e.to_string()))?;
     let mut signal = None;
     let result = std::thread::scope(|s| {
         let handle = s.spawn(|| pool.install(|| work(&progress)));

@@ -132,6 +132,14 @@ impl PyScene {
                 i / 3
             )));
         }
+        let max = f64::from(umbra::scene::checks::MAX_COORD);
+        if let Some(i) = vertices.iter().position(|x| x.abs() > max) {
+            return Err(UmbraError::new_err(format!(
+                "{name}: row {} has {}, more than {max} m from the origin along an axis (Umbra works in metres)",
+                i / 3,
+                vertices.iter().nth(i).copied().unwrap_or(f64::NAN)
+            )));
+        }
         for (p, row) in self.inner.objects[object]
             .mesh
             .positions
@@ -259,7 +267,7 @@ pub fn load_scene(path: &str, defines: Option<Vec<(String, String)>>) -> PyResul
 pub fn load_scene_xml(text: &str, base_dir: &str, origin: &str) -> PyResult<PyScene> {
     let inner = umbra::scene::mitsuba_xml::parse(text, Path::new(origin), Path::new(base_dir))
         .map_err(to_py)?
-        .with_overlap_warnings();
+        .with_load_warnings();
     Ok(PyScene::new(inner))
 }
 

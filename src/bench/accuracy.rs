@@ -265,7 +265,7 @@ pub fn export_mitsuba(
 /// Points measured elsewhere (the Python suite's mitransient curves), from a CSV in
 /// [`csv`]'s columns; rows of scenes not in `scene_names` are skipped.
 pub fn read_points(path: &Path, scene_names: &[&'static str]) -> Result<Vec<Point>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::io::read_text(path, "a curve file")?;
     if text.lines().next().map(str::trim) != Some(CSV_HEADER.trim()) {
         return Err(Error::Line {
             file: path.to_path_buf(),

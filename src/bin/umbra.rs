@@ -94,7 +94,7 @@ struct RenderArgs {
     output: PathBuf,
     #[command(flatten)]
     flags: flags::RenderFlags,
-    /// Worker threads (default: all cores). The output does not depend on it.
+    /// Worker threads (default or 0: all cores; at most 4 per core, `umbra::threads`). The output does not depend on it.
     #[arg(long)]
     threads: Option<usize>,
     /// Set a Mitsuba XML `$name` parameter (overrides its <default>), e.g. -D spp=64.
@@ -167,14 +167,7 @@ fn render(args: RenderArgs) -> umbra::Result<()> {
         eprintln!("warning: {w}");
     }
     let opts = args.flags.overrides().apply(&mut scene)?;
-    let pool = {
-        let mut b = rayon::ThreadPoolBuilder::new();
-        if let Some(t) = args.threads {
-            b = b.num_threads(t.max(1));
-        }
-        b.build()
-            .map_err(|e| umbra::Error::Invalid(format!("thread pool: {e}")))?
-    };
+    let pool = umbra::threads::pool(args.threads, "--threads")?;
 
     let start = Instant::now();
     let geom = SceneGeometry::build(&scene);

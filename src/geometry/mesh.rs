@@ -15,10 +15,38 @@ pub struct TriMesh {
     pub vertex_albedo: Option<Vec<f32>>,
 }
 
+/// The vertex index (0-based) of one `f` entry `v`, `v/vt`, `v//vn` or `v/vt/vn`, given
+/// `n` vertices so far. The `vt` and `vn` parts are not used, but must be integers when
+/// present, so a malformed line (`f 1/2/3/4 2// 3/x`) is refused rather than half read.
+fn face_vertex(entry: &str, n: i64) -> std::result::Result<u32, String> {
+    let parts: Vec<&str> = entry.split('/').collect();
+    if parts.len() > 3 {
+        return Err("has more than v/vt/vn".into());
+    }
+    let v = parts[0];
+    let k = match v.parse::<i64>() {
+        Ok(k) if k > 0 && k <= n => k - 1,
+        Ok(k) if k < 0 && -k <= n => n + k,
+        _ => return Err("does not name an earlier vertex".into()),
+    };
+    if let Some(bad) = parts[1..]
+        .iter()
+        .find(|p| !p.is_empty() && p.parse::<i64>().map_or(true, |i| i == 0))
+    {
+        return Err(format!(
+            "has a texture or normal index '{bad}' that is not a non-zero integer"
+        ));
+    }
+    if parts.len() > 1 && parts[parts.len() - 1].is_empty() {
+        return Err("ends with '/' (write v, v/vt, v//vn or v/vt/vn)".into());
+    }
+    Ok(k as u32)
+}
+
 impl TriMesh {
     /// Reads every object and group of an OBJ file into one mesh (polygons triangulated).
     pub fn load_obj(path: &Path) -> Result<TriMesh> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = crate::io::read_text(path, "an OBJ mesh")?;
         Self::parse_obj(&text, path)
     }
 
@@ -70,17 +98,9 @@ impl TriMesh {
                     face.clear();
                     let n = mesh.positions.len() as i64;
                     for v in it {
-                        let first = v.split('/').next().unwrap_or("");
-                        let k = match first.parse::<i64>() {
-                            Ok(k) if k > 0 && k <= n => k - 1,
-                            Ok(k) if k < 0 && -k <= n => n + k,
-                            _ => {
-                                return Err(at(format!(
-                                    "face vertex '{v}' does not name an earlier vertex"
-                                )))
-                            }
-                        };
-                        face.push(k as u32);
+                        face.push(
+                            face_vertex(v, n).map_err(|m| at(format!("face vertex '{v}' {m}")))?,
+                        );
                     }
                     if face.len() < 3 {
                         return Err(at("face needs at least 3 vertices".into()));
@@ -189,5 +209,24 @@ mod tests {
         );
         let e = TriMesh::parse_obj("v 0 0 0\nf 1 2 3\n", Path::new("x.obj")).unwrap_err();
         assert!(e.to_string().starts_with("x.obj:2:"), "{e}");
+        let tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+        for (face, why) in [
+            ("f 1/2/3/4 2 3", "'1/2/3/4' has more than v/vt/vn"),
+            ("f 1 2// 3", "'2//' ends with '/'"),
+            ("f 1 2 3/x", "'3/x' has a texture or normal index 'x'"),
+            ("f 1 2 3/", "'3/' ends with '/'"),
+            ("f 1 2 3/0", "'3/0' has a texture or normal index '0'"),
+        ] {
+            let e = TriMesh::parse_obj(&format!("{tri}{face}\n"), Path::new("x.obj"))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.starts_with("x.obj:4: face vertex ") && e.contains(why),
+                "{face}: {e}"
+            );
+        }
+        for ok in ["f 1/1 2/2/2 3//3", "f -3 -2 -1"] {
+            TriMesh::parse_obj(&format!("{tri}{ok}\n"), Path::new("x.obj")).unwrap();
+        }
     }
 }

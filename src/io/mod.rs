@@ -6,12 +6,14 @@ pub mod measured;
 mod npy_header;
 pub mod plot;
 pub mod preview;
+pub mod text;
 pub mod ytal;
 
 use crate::error::{Error, Result};
 use crate::transport::Transient;
 use ndarray::{ArrayD, IxDyn};
 use std::path::Path;
+pub use text::read_text;
 
 /// Writes a render of `scene`; the format follows the extension: `.hdf5` / `.h5` (y-tal's
 /// capture format, which needs the scene's geometry), else as [`write_transient`].
@@ -140,15 +142,17 @@ pub fn read_npy(path: &Path) -> Result<Transient> {
 
 /// Writes a gradient as `.npz`: `loss` (a scalar), `vertices` (V x 3, f64) or
 /// `vertices_<k>` per object if there are several, `albedo` (one per object), and
-/// `vertex_albedo` / `vertex_albedo_<k>` for objects with per-vertex albedo.
+/// `vertex_albedo` / `vertex_albedo_<k>` for objects with per-vertex albedo; atomically
+/// ([`write_via_temp`]).
 pub fn write_gradient(path: &Path, loss: f64, g: &crate::adjoint::Gradient) -> Result<()> {
+    write_via_temp(path, |tmp| write_npz(tmp, path, loss, g))
+}
+
+fn write_npz(tmp: &Path, path: &Path, loss: f64, g: &crate::adjoint::Gradient) -> Result<()> {
     use ndarray::{arr0, Array1, Array2};
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    }
     let npz_err =
         |e: ndarray_npy::WriteNpzError| Error::Invalid(format!("{}: {e}", path.display()));
-    let file = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
+    let file = std::fs::File::create(tmp).map_err(|e| Error::io(tmp, e))?;
     let mut npz = ndarray_npy::NpzWriter::new(file);
     npz.add_array("loss", &arr0(loss)).map_err(npz_err)?;
     let several = g.vertices.len() > 1;

@@ -74,7 +74,7 @@ pub fn load_with_defines(path: &Path, defines: &[(String, String)]) -> Result<Sc
 /// [`load_with_defines`] as if run in the folder `cwd` (`None`: search only next to
 /// the XML).
 pub fn load_in(path: &Path, defines: &[(String, String)], cwd: Option<&Path>) -> Result<Scene> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::io::read_text(path, "a Mitsuba XML scene")?;
     let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
     build(&text, path, Resolver::new(&base, cwd), defines)
 }

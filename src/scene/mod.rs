@@ -7,6 +7,7 @@
 //! ([`mitsuba_xml`]). Both end in [`Scene::validate`], so the renderers can trust what
 //! they get: finite numbers, positive sizes, a laser and a detector in front of the wall.
 
+pub mod checks;
 pub mod default;
 pub mod mitsuba_xml;
 pub mod toml_format;
@@ -347,10 +348,8 @@ impl Scene {
                 path,
                 "-D name=value defines apply to Mitsuba XML scenes only",
             )),
-            "toml" => toml_format::load(path).map(Scene::with_overlap_warnings),
-            "xml" => {
-                mitsuba_xml::load_with_defines(path, defines).map(Scene::with_overlap_warnings)
-            }
+            "toml" => toml_format::load(path).map(Scene::with_load_warnings),
+            "xml" => mitsuba_xml::load_with_defines(path, defines).map(Scene::with_load_warnings),
             _ => Err(Error::scene(
                 path,
                 "unknown scene format: the extension must be .toml (Umbra) or .xml (Mitsuba)",
@@ -359,11 +358,14 @@ impl Scene {
     }
 
     /// The scene with a warning for every hidden object whose faces coincide with other
-    /// faces (a duplicated layer renders up to twice as bright; [`overlap`]). The file
-    /// loaders and Python's loaders call it.
+    /// faces (a duplicated layer renders up to twice as bright; [`overlap`]), that lies
+    /// partly behind the wall, and for scan points off the wall ([`checks::warnings`]).
+    /// The file loaders and Python's loaders call it.
     ///
     /// [`overlap`]: crate::geometry::overlap
-    pub fn with_overlap_warnings(mut self) -> Scene {
+    pub fn with_load_warnings(mut self) -> Scene {
+        let more = checks::warnings(&self);
+        self.warnings.extend(more);
         let meshes: Vec<_> = self
             .objects
             .iter()
@@ -543,12 +545,6 @@ impl Scene {
                     format!("must be in [0, 1], got {}", o.albedo),
                 );
             }
-            if let Some(bad) = o.mesh.positions.iter().position(|p| !p.is_finite()) {
-                return err(
-                    &format!("objects[{i}] ({})", o.name),
-                    format!("vertex {bad} is not finite"),
-                );
-            }
             if let Some(a) = &o.mesh.vertex_albedo {
                 if a.iter().any(|v| !(0.0..=1.0).contains(v)) {
                     return err(
@@ -580,6 +576,6 @@ impl Scene {
                 "NLOS paths need at least 3 bounces".into(),
             );
         }
-        Ok(())
+        checks::check(self, origin)
     }
 }

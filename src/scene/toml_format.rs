@@ -211,7 +211,7 @@ fn yes() -> bool {
 
 /// Reads a TOML scene from disk.
 pub fn load(path: &Path) -> Result<Scene> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::io::read_text(path, "a scene")?;
     let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
     parse(&text, path, &|file| {
         let p = base.join(file);
@@ -237,7 +237,22 @@ pub fn parse(
                     + 1
             })
             .unwrap_or(0);
-        Error::line(origin, line, e.message().to_string())
+        // toml's messages can span lines, and are empty for a file that ends where a
+        // value should start (`albedo =` at the end).
+        let msg = e
+            .message()
+            .lines()
+            .map(str::trim)
+            .filter(|l| !l.is_empty())
+            .collect::<Vec<_>>()
+            .join("; ");
+        let at_end = e.span().is_some_and(|s| s.start >= text.trim_end().len());
+        let msg = match (msg.is_empty(), at_end) {
+            (true, true) => "the file ends where a value was expected (truncated?)".into(),
+            (true, false) => "malformed TOML".into(),
+            (false, _) => msg,
+        };
+        Error::line(origin, line, msg)
     })?;
     let field = |name: &str, msg: String| Error::field(origin, name, msg);
 

@@ -19,6 +19,8 @@
 //! | `path` with `laser.spot_radius > 0` | gradient | replay differentiates a point spot only |
 //! | `auto` | gradient | resolve it first ([`super::Renderer::new`] does) |
 //! | `spp = 0`, `subdivision` or `max_error` not > 0, `max_depth` < 3 | both | |
+//! | a vertex not finite or beyond `scene::checks::MAX_COORD` | both | the BVH and `f32` OPLs cannot take it |
+//! | more memory than the machine has ([`super::budget`]) | both | the size in bytes and the fields that make it |
 
 use super::RenderOptions;
 use crate::error::{Error, Result};
@@ -38,6 +40,10 @@ pub enum Pass {
 pub fn check(scene: &Scene, opts: &RenderOptions, pass: Pass) -> Result<()> {
     check_values(scene.render.max_bounces, opts)?;
     check_reflectance(scene, opts.model)?;
+    check_vertices(scene)?;
+    if opts.model != Model::Auto {
+        super::budget::check(scene, opts, pass)?;
+    }
     let t = &scene.render.techniques;
     let point_spot = scene.laser.spot_radius <= 0.0;
     let problem = match (opts.model, pass) {
@@ -81,6 +87,20 @@ fn check_values(max_bounces: u32, opts: &RenderOptions) -> Result<()> {
         return bad(format!(
             "max_depth: NLOS paths need at least 3 bounces, got {max_bounces}"
         ));
+    }
+    Ok(())
+}
+
+/// Vertices the BVH and `f32` OPLs can take: finite and within
+/// [`checks::MAX_COORD`](crate::scene::checks::MAX_COORD) (a scene from a file was
+/// checked on loading; this catches positions set by a program or a fit step).
+fn check_vertices(scene: &Scene) -> Result<()> {
+    use crate::scene::checks::{bad_vertex, bad_vertex_message};
+    for (i, o) in scene.objects.iter().enumerate() {
+        if let Some(bad) = bad_vertex(&o.mesh.positions) {
+            let what = format!("objects[{i}] ({})", o.name);
+            return Err(Error::Invalid(bad_vertex_message(&what, bad)));
+        }
     }
     Ok(())
 }

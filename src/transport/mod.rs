@@ -12,6 +12,7 @@
 //! number of threads.
 
 pub mod auto;
+pub mod budget;
 pub mod gate;
 pub mod mc3;
 pub mod path;

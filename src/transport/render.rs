@@ -7,6 +7,7 @@
 //! on the number of threads.
 
 use super::auto::{choose_model, AutoChoice};
+use super::budget::FOLD_BLOCKS;
 use super::gate::{self, Pass};
 use super::tri3::{self, Tri3Mesh, Tri3Scratch};
 use super::{run_samples, HistogramSink, MeasurementCtx, BLOCK_SPP};
@@ -211,38 +212,44 @@ impl<'a> Renderer<'a> {
         stop: &(dyn Fn() -> bool + Sync),
     ) -> Option<Vec<f64>> {
         let (bins, spp) = (self.film.bins, self.opts.spp);
-        let blocks: Vec<Option<Vec<f64>>> = (0..spp.div_ceil(BLOCK_SPP))
-            .into_par_iter()
-            .map(|b| {
-                if stop() {
-                    return None;
-                }
-                let first = b * BLOCK_SPP;
-                let last = (first + BLOCK_SPP).min(spp);
-                let mut hist = vec![0.0f64; bins];
-                let mut sink = HistogramSink {
-                    film: &self.film,
-                    hist: &mut hist,
-                };
-                run_samples(
-                    self.model,
-                    ctx,
-                    self.opts.seed,
-                    m as u64,
-                    first..last,
-                    &mut sink,
-                );
-                if let Some(p) = progress {
-                    p.work_done
-                        .fetch_add((last - first) as u64, Ordering::Relaxed);
-                }
-                Some(hist)
-            })
-            .collect();
+        let blocks = spp.div_ceil(BLOCK_SPP) as usize;
         let mut acc = vec![0.0f64; bins];
-        for h in blocks {
-            for (a, v) in acc.iter_mut().zip(h?) {
-                *a += v;
+        // Blocks run FOLD_BLOCKS at a time and are added in block order: memory stays
+        // flat in spp (it grew by a histogram per block until the measurement ended), and
+        // the sum does not depend on the thread count.
+        for group in (0..blocks).step_by(FOLD_BLOCKS) {
+            let hists: Vec<Option<Vec<f64>>> = (group..(group + FOLD_BLOCKS).min(blocks))
+                .into_par_iter()
+                .map(|b| {
+                    if stop() {
+                        return None;
+                    }
+                    let first = b as u32 * BLOCK_SPP;
+                    let last = (first + BLOCK_SPP).min(spp);
+                    let mut hist = vec![0.0f64; bins];
+                    let mut sink = HistogramSink {
+                        film: &self.film,
+                        hist: &mut hist,
+                    };
+                    run_samples(
+                        self.model,
+                        ctx,
+                        self.opts.seed,
+                        m as u64,
+                        first..last,
+                        &mut sink,
+                    );
+                    if let Some(p) = progress {
+                        p.work_done
+                            .fetch_add((last - first) as u64, Ordering::Relaxed);
+                    }
+                    Some(hist)
+                })
+                .collect();
+            for h in hists {
+                for (a, v) in acc.iter_mut().zip(h?) {
+                    *a += v;
+                }
             }
         }
         let inv_spp = 1.0 / spp as f64;

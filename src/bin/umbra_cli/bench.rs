@@ -17,7 +17,7 @@ pub struct BenchArgs {
     /// Samples per seed of the mc3 reference of the error table (0: speed only, no table).
     #[arg(long, default_value_t = 1 << 19)]
     pub reference_spp: u32,
-    /// Worker threads (default: all cores).
+    /// Worker threads (default or 0: all cores; at most 4 per core, `umbra::threads`).
     #[arg(long)]
     pub threads: Option<usize>,
     /// grad-pass: the model.
@@ -74,13 +74,7 @@ pub fn bench(args: BenchArgs) -> umbra::Result<()> {
             args.which
         )));
     }
-    let mut b = rayon::ThreadPoolBuilder::new();
-    if let Some(t) = args.threads {
-        b = b.num_threads(t.max(1));
-    }
-    let pool = b
-        .build()
-        .map_err(|e| umbra::Error::Invalid(format!("thread pool: {e}")))?;
+    let pool = umbra::threads::pool(args.threads, "--threads")?;
     if args.which == "grad-pass" {
         // Child of `bench grad`: one adjoint pass, then its peak memory.
         let model = Model::parse(args.model.as_deref().unwrap_or("mc3"))

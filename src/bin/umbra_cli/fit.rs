@@ -94,7 +94,7 @@ pub struct FitArgs {
     /// signal instead of 0.68), `1,1` otherwise.
     #[arg(long, value_parser = parse_bin)]
     pub bin: Option<(u32, u32)>,
-    /// Worker threads (default: all cores).
+    /// Worker threads (default or 0: all cores; at most 4 per core, `umbra::threads`).
     #[arg(long)]
     pub threads: Option<usize>,
     /// No progress bar.
@@ -133,7 +133,7 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         // The fit drives the renderer from this thread (its progress callback is not
         // Send), so the thread count goes to rayon's global pool.
         rayon::ThreadPoolBuilder::new()
-            .num_threads(t.max(1))
+            .num_threads(umbra::threads::check(Some(t), "--threads")?)
             .build_global()
             .map_err(|e| Error::Invalid(format!("thread pool: {e}")))?;
     }

@@ -27,7 +27,7 @@ pub struct GradArgs {
     /// Loss: l2 or l2-normalized (per scan point).
     #[arg(long, default_value = "l2")]
     loss: String,
-    /// Worker threads (default: all cores). The output does not depend on it.
+    /// Worker threads (default or 0: all cores; at most 4 per core, `umbra::threads`). The output does not depend on it.
     #[arg(long)]
     threads: Option<usize>,
     /// Set a Mitsuba XML `$name` parameter, e.g. -D spp=64.
@@ -51,12 +51,24 @@ pub struct GradcheckArgs {
     /// Largest accepted relative error (against max(|fd|, 2 % of the largest |fd|)).
     #[arg(long, default_value_t = 0.01)]
     tolerance: f64,
-    /// Worker threads (default: all cores).
+    /// Worker threads (default or 0: all cores; at most 4 per core, `umbra::threads`).
     #[arg(long)]
     threads: Option<usize>,
     /// Set a Mitsuba XML `$name` parameter, e.g. -D spp=64.
     #[arg(short = 'D', value_name = "NAME=VALUE")]
     define: Vec<String>,
+}
+
+/// Ctrl-C ends `command` at once with a message (exit 130). The gradient is written
+/// atomically at the end, so an interrupted run leaves any earlier `output` whole.
+fn exit_on_ctrl_c(command: &'static str, output: Option<&std::path::Path>) {
+    let note = output.map_or(String::new(), |o| {
+        format!("; {} was not written", o.display())
+    });
+    let _ = ctrlc::set_handler(move || {
+        eprintln!("\numbra {command}: interrupted{note}");
+        std::process::exit(130);
+    });
 }
 
 pub fn grad(args: GradArgs) -> umbra::Result<()> {
@@ -71,10 +83,8 @@ pub fn grad(args: GradArgs) -> umbra::Result<()> {
     if let Some(w) = adjoint::box_kernel_warning(&scene, opts.model) {
         eprintln!("warning: {w}");
     }
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(args.threads.unwrap_or(0))
-        .build()
-        .map_err(|e| umbra::Error::Invalid(format!("--threads: {e}")))?;
+    let pool = umbra::threads::pool(args.threads, "--threads")?;
+    exit_on_ctrl_c("grad", Some(&args.output));
     let (input, given) = match (&args.target, &args.adjoint) {
         (_, Some(a)) => (a, true),
         (Some(t), None) => (t, false),
@@ -147,10 +157,8 @@ pub fn gradcheck(args: GradcheckArgs) -> umbra::Result<()> {
     if let Some(w) = adjoint::box_kernel_warning(&scene, opts.model) {
         eprintln!("warning: {w}");
     }
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(args.threads.unwrap_or(0))
-        .build()
-        .map_err(|e| umbra::Error::Invalid(format!("--threads: {e}")))?;
+    let pool = umbra::threads::pool(args.threads, "--threads")?;
+    exit_on_ctrl_c("gradcheck", None);
     let params = check::pick_params(&scene, args.params, opts.seed);
     let rows = pool.install(|| check::run(&scene, &opts, &params, &args.h))?;
     let largest = rows

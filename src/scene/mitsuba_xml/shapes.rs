@@ -72,15 +72,8 @@ pub(super) fn shape(
         let path = files
             .resolve(file)
             .map_err(|m| cx.err(fline, format!("<shape type=\"obj\">: {m}")))?;
-        let text = std::fs::read_to_string(&path).map_err(|e| {
-            cx.err(
-                fline,
-                format!(
-                    "<shape type=\"obj\">: cannot read '{}': {e}",
-                    path.display()
-                ),
-            )
-        })?;
+        let text = crate::io::read_text(&path, "an OBJ mesh")
+            .map_err(|e| cx.err(fline, format!("<shape type=\"obj\">: cannot read {e}")))?;
         let mesh = TriMesh::parse_obj(&text, &path)?;
         let has_vn = text.lines().any(|l| l.trim_start().starts_with("vn "));
         if !face_normals && (has_vn || !is_planar(&mesh)) {

@@ -64,6 +64,11 @@ impl Lines {
     }
 }
 
+/// Deepest element nesting accepted. Mitsuba scenes nest about 5 deep (scene, shape,
+/// bsdf, nested bsdf, value); the bound keeps every recursive pass over the tree (and
+/// dropping it) far from the stack's limit, which 40,000 nested elements overflowed.
+pub(crate) const MAX_DEPTH: usize = 64;
+
 /// The parsed file: its root element, the `<default>` names it declares (in document
 /// order) and the `$name`s it references.
 pub(crate) struct Parsed {
@@ -91,6 +96,12 @@ pub(crate) fn parse(text: &str, origin: &Path, defines: &[(String, String)]) -> 
         })?;
         let done = match event {
             Event::Start(e) => {
+                if stack.len() >= MAX_DEPTH {
+                    return Err(err(
+                        start,
+                        format!("elements nested more than {MAX_DEPTH} deep (a Mitsuba scene nests about 5)"),
+                    ));
+                }
                 stack.push(node(&e, start, &lines, origin)?);
                 None
             }

@@ -1,0 +1,257 @@
+//! Fuzzes the whole of `umbra render`, not only the parsers: random scenes (capture,
+//! scan, film, meshes with wild coordinates, models and sampling options, many of them
+//! absurd) are rendered by the binary in a child process under a hard memory cap
+//! (`ulimit -v`) and a time limit, with `UMBRA_MAX_MEMORY` below the cap so the gate's
+//! own refusal is what should stop a too-large render. Each run must end with exit 0 and
+//! a finite `.npy`, or exit 1 with an `error:` line last; a signal (abort, segfault, OOM), a
+//! panic or a timeout fails the case, and proptest saves its shrunk input in
+//! `tests/fuzz_render.proptest-regressions`, which later runs replay first.
+//!
+//! Cases: `UMBRA_FUZZ_CASES` (default 64, which CI runs: seconds on two cores; 600
+//! cases took 132 s). `UMBRA_FUZZ_BIN` fuzzes another build of `umbra` (an older one:
+//! 1625a71 fails within a few cases, on a 100000 x 100000 scan).
+
+use proptest::prelude::*;
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Hard cap on the child's address space (KiB) and the budget it is told about.
+const ULIMIT_KIB: u64 = 6 << 20;
+const BUDGET: &str = "1G";
+const TIME_LIMIT: Duration = Duration::from_secs(60);
+
+#[derive(Clone, Debug)]
+struct Case {
+    capture: &'static str,
+    scan: [u32; 2],
+    scan_size: f32,
+    bins: u32,
+    bin_width: f32,
+    start_opl: f32,
+    kernel: Option<f32>,
+    laser: [f32; 3],
+    spot_radius: f32,
+    obj: String,
+    albedo: f32,
+    z: f32,
+    model: &'static str,
+    spp: u32,
+    extra: Vec<String>,
+    threads: u32,
+}
+
+fn coord() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        8 => -1.0f32..1.0,
+        1 => prop::sample::select(vec![0.0f32, 1e-30, 1e7, -1e30, 3e38, 1e-7]),
+    ]
+}
+
+fn obj() -> impl Strategy<Value = String> {
+    (
+        prop::collection::vec((coord(), coord(), coord()), 3..12),
+        prop::collection::vec((0usize..12, 0usize..12, 0usize..12), 1..12),
+    )
+        .prop_map(|(vs, fs)| {
+            let mut s: String = vs
+                .iter()
+                .map(|(x, y, z)| format!("v {x:e} {y:e} {z:e}\n"))
+                .collect();
+            for (a, b, c) in fs {
+                let n = vs.len();
+                s += &format!("f {} {} {}\n", a % n + 1, b % n + 1, c % n + 1);
+            }
+            s
+        })
+}
+
+fn extra() -> impl Strategy<Value = Vec<String>> {
+    prop::collection::vec(
+        prop::sample::select(vec![
+            "filter_bounces = 3",
+            "filter_bounces = 4",
+            "filter_bounces = 2",
+            "max_bounces = 3",
+            "max_bounces = 5",
+            "laser_sampling = false",
+            "hidden_geometry_sampling = false",
+            "bsdf_sampling = false",
+            "visibility = \"none\"",
+            "visibility = \"subtriangle\"",
+            "subdivision = 1e-6",
+            "subdivision = 100.0",
+            "visible_legs = false",
+            "discard_direct_paths = true",
+            "rr_bounces = 0",
+        ])
+        .prop_map(String::from),
+        0..3,
+    )
+}
+
+fn case() -> impl Strategy<Value = Case> {
+    let film = (
+        prop_oneof![4 => 1u32..300, 1 => Just(100_000u32), 1 => Just(1_000_000_000u32)],
+        prop_oneof![4 => 0.001f32..0.1, 1 => Just(1e-7f32), 1 => Just(50.0f32)],
+        prop_oneof![3 => 0.0f32..3.0, 1 => Just(-1e6f32)],
+        prop::option::of(prop_oneof![0.001f32..0.1, Just(1e-9f32)]),
+    );
+    let capture = (
+        prop::sample::select(vec!["single", "confocal", "exhaustive"]),
+        prop_oneof![4 => (1u32..6, 1u32..6).prop_map(|(a, b)| [a, b]), 1 => Just([100_000u32, 100_000]), 1 => Just([64u32, 64])],
+        prop_oneof![3 => 0.1f32..2.0, 1 => Just(10.0f32)],
+    );
+    let light = (
+        (
+            -1.0f32..1.0,
+            -2.0f32..0.0,
+            prop_oneof![4 => 0.3f32..2.0, 1 => Just(-0.5f32)],
+        ),
+        prop_oneof![3 => Just(0.0f32), 1 => 0.0f32..0.1],
+    );
+    let hidden = (
+        obj(),
+        0.0f32..1.0,
+        prop_oneof![3 => 0.2f32..2.0, 1 => -1.0f32..0.0],
+    );
+    let render = (
+        prop::sample::select(vec!["tri3", "mc3", "path", "auto"]),
+        1u32..24,
+        extra(),
+        prop_oneof![3 => Just(0u32), 1 => 1u32..3],
+    );
+    (film, capture, light, hidden, render).prop_map(
+        |(
+            (bins, bin_width, start_opl, kernel),
+            (cap, scan, scan_size),
+            ((lx, ly, lz), spot),
+            (obj, albedo, z),
+            (model, spp, extra, threads),
+        )| Case {
+            capture: cap,
+            scan,
+            scan_size,
+            bins,
+            bin_width,
+            start_opl,
+            kernel,
+            laser: [lx, ly, lz],
+            spot_radius: spot,
+            obj,
+            albedo,
+            z,
+            model,
+            spp,
+            extra,
+            threads,
+        },
+    )
+}
+
+impl Case {
+    fn toml(&self) -> String {
+        let mut t = format!(
+            "capture_type = \"{}\"\n[wall]\nsize = [2.0, 2.0]\n[laser]\norigin = [{:?}, {:?}, {:?}]\n\
+             spot_radius = {:?}\n[scan]\nresolution = [{}, {}]\nsize = [{:?}, {:?}]\n[film]\n\
+             temporal_bins = {}\nbin_width_opl = {:?}\nstart_opl = {:?}\n",
+            self.capture,
+            self.laser[0],
+            self.laser[1],
+            self.laser[2],
+            self.spot_radius,
+            self.scan[0],
+            self.scan[1],
+            self.scan_size,
+            self.scan_size,
+            self.bins,
+            self.bin_width,
+            self.start_opl
+        );
+        if let Some(s) = self.kernel {
+            t += &format!("kernel = \"gaussian\"\nsigma_opl = {s:?}\n");
+        }
+        t += &format!(
+            "[[objects]]\nfile = \"h.obj\"\nalbedo = {:?}\ntransform = {{ translate = [0.0, 0.0, {:?}] }}\n\
+             [render]\nmodel = \"{}\"\nspp = {}\n",
+            self.albedo, self.z, self.model, self.spp
+        );
+        for l in &self.extra {
+            t += l;
+            t.push('\n');
+        }
+        t
+    }
+}
+
+/// Runs one case; `Err` describes a crash, a panic, a timeout or a bad output.
+fn run(case: &Case, dir: &Path) -> Result<(), String> {
+    std::fs::write(dir.join("h.obj"), &case.obj).unwrap();
+    std::fs::write(dir.join("scene.toml"), case.toml()).unwrap();
+    let _ = std::fs::remove_file(dir.join("out.npy"));
+    let mut cmd = format!(
+        "ulimit -v {ULIMIT_KIB}; exec '{}' render scene.toml -o out.npy -q --no-preview",
+        std::env::var("UMBRA_FUZZ_BIN").unwrap_or_else(|_| env!("CARGO_BIN_EXE_umbra").into())
+    );
+    if case.threads > 0 {
+        cmd += &format!(" --threads {}", case.threads);
+    }
+    let mut child = Command::new("sh")
+        .args(["-c", &cmd])
+        .current_dir(dir)
+        .env("UMBRA_MAX_MEMORY", BUDGET)
+        .env("RUST_BACKTRACE", "0")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if start.elapsed() > TIME_LIMIT {
+            let _ = child.kill();
+            let _ = child.wait();
+            return Err(format!("timeout after {TIME_LIMIT:?}"));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+    match status.code() {
+        Some(0) => {
+            let t = umbra::io::read_npy(&dir.join("out.npy")).map_err(|e| e.to_string())?;
+            match t.data.iter().position(|v| !v.is_finite()) {
+                Some(i) => Err(format!("non-finite value at {i} written")),
+                None => Ok(()),
+            }
+        }
+        Some(1)
+            if err.lines().last().is_some_and(|l| l.starts_with("error: "))
+                && !err.contains("panicked") =>
+        {
+            Ok(())
+        }
+        code => Err(format!("exit {code:?} (signal or panic): {err}")),
+    }
+}
+
+fn cases() -> u32 {
+    std::env::var("UMBRA_FUZZ_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(64)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: cases(), max_shrink_iters: 64, .. ProptestConfig::default() })]
+
+    #[test]
+    fn render_never_crashes(c in case()) {
+        let dir = std::env::temp_dir().join(format!("umbra-fuzz-render-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let r = run(&c, &dir);
+        prop_assert!(r.is_ok(), "{}\n--- scene.toml\n{}--- h.obj\n{}", r.unwrap_err(), c.toml(), c.obj);
+    }
+}

@@ -280,3 +280,29 @@ fn grad_and_gradcheck_say_when_interrupted() {
     assert_eq!(std::fs::read(dir.join("g.npz")).unwrap(), b"earlier");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `grad` checks where its `.npz` goes before computing anything (a path under a file
+/// failed only after the work).
+#[test]
+fn grad_checks_its_output_first() {
+    let dir = tmp_dir("grad-output");
+    std::fs::write(dir.join("plain_file"), "x").unwrap();
+    let (code, err) = umbra(
+        &dir,
+        &[
+            "grad",
+            "no_such_scene.toml",
+            "--target",
+            "t.npy",
+            "-o",
+            "plain_file/g.npz",
+        ],
+        &[],
+    );
+    assert_eq!(code, Some(1), "{err}");
+    assert!(
+        err.contains("plain_file") && !err.contains("no_such_scene"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -135,7 +135,7 @@ impl PyScene {
         let max = f64::from(umbra::scene::checks::MAX_COORD);
         if let Some(i) = vertices.iter().position(|x| x.abs() > max) {
             return Err(UmbraError::new_err(format!(
-                "{name}: row {} has {}, more than {max} m from the origin along an axis (Umbra works in metres)",
+                "{name}: row {} has {:e}, more than {max} m from the origin along an axis (Umbra works in metres)",
                 i / 3,
                 vertices.iter().nth(i).copied().unwrap_or(f64::NAN)
             )));

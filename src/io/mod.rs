@@ -108,9 +108,15 @@ pub fn write_via_temp(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> R
 /// folder that exists or can be made (not a file), the path itself not a folder.
 pub fn check_output(path: &Path) -> Result<()> {
     OutputFormat::of(path)?;
+    check_output_place(path)
+}
+
+/// Checks, before any work, that a file can be written at `path`: not a folder, in a
+/// folder that exists or can be made.
+pub fn check_output_place(path: &Path) -> Result<()> {
     if path.is_dir() {
         return Err(Error::Invalid(format!(
-            "{}: is a folder; give a file name (e.g. {}/transient.npy)",
+            "{}: is a folder; give a file name (e.g. {}/out.npy)",
             path.display(),
             path.display()
         )));

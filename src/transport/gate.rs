@@ -41,9 +41,13 @@ pub fn check(scene: &Scene, opts: &RenderOptions, pass: Pass) -> Result<()> {
     check_values(scene.render.max_bounces, opts)?;
     check_reflectance(scene, opts.model)?;
     check_vertices(scene)?;
-    if opts.model != Model::Auto {
-        super::budget::check(scene, opts, pass)?;
-    }
+    // `auto` is checked as `tri3`, the smallest footprint it can pick, before its pilot
+    // runs; `Renderer::new` checks the model it picks.
+    let model = match opts.model {
+        Model::Auto => Model::Tri3,
+        m => m,
+    };
+    super::budget::check(scene, &RenderOptions { model, ..*opts }, pass)?;
     let t = &scene.render.techniques;
     let point_spot = scene.laser.spot_radius <= 0.0;
     let problem = match (opts.model, pass) {

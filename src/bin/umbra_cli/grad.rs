@@ -73,6 +73,8 @@ fn exit_on_ctrl_c(command: &'static str, output: Option<&std::path::Path>) {
 
 pub fn grad(args: GradArgs) -> umbra::Result<()> {
     use umbra::adjoint::{self, Loss};
+    // Before any work: a typo in the output must not cost a gradient.
+    umbra::io::check_output_place(&args.output)?;
     let mut scene = load_scene(Some(&args.scene), &args.define)?;
     for w in &scene.warnings {
         eprintln!("warning: {w}");

@@ -99,21 +99,33 @@ impl<O: Objective> Solver<O, State> for Adam {
             if let Some(p) = problem.problem.as_ref() {
                 p.project(&mut candidate);
             }
-            if let Some((cost, grad)) = evaluate(problem, &candidate) {
-                (self.m, self.v, self.t) = (m, v, t);
-                let kv = argmin::kv!("lr" => self.lr; "rejected" => rejected_now;);
-                return Ok((state.param(candidate).cost(cost).gradient(grad), Some(kv)));
-            }
+            let why = match evaluate(problem, &candidate) {
+                Ok((cost, grad)) => {
+                    (self.m, self.v, self.t) = (m, v, t);
+                    let kv = argmin::kv!("lr" => self.lr; "rejected" => rejected_now;);
+                    return Ok((state.param(candidate).cost(cost).gradient(grad), Some(kv)));
+                }
+                Err(why) => why,
+            };
             self.rejected += 1;
             rejected_now += 1;
             if rejected_now > self.max_retries {
                 return Err(Error::msg(format!(
-                    "Adam: {rejected_now} steps in a row gave a non-finite cost or a failed render (step size now {:e})",
+                    "Adam: {rejected_now} steps in a row failed, the step size halved down to {:e} (the last: {why})",
                     self.lr
                 )));
             }
             self.lr *= 0.5;
         }
+    }
+}
+
+impl crate::checkpoint::CheckFinite for Adam {
+    fn non_finite(&self) -> Option<String> {
+        use crate::checkpoint::first_non_finite;
+        first_non_finite("Adam step size", &[self.lr])
+            .or_else(|| first_non_finite("Adam first moment", &self.m))
+            .or_else(|| first_non_finite("Adam second moment", &self.v))
     }
 }
 

@@ -134,6 +134,8 @@ enum Search {
     Accepted(Point),
     /// No Armijo point; the lowest point evaluated, if any was finite.
     Failed(Option<Point>),
+    /// Every evaluation failed or was not finite: the last reason.
+    Rejected(String),
 }
 
 impl Lbfgs {
@@ -156,6 +158,8 @@ impl Lbfgs {
             1.0_f64.min(self.max_step / d_max)
         };
         let mut best: Option<Point> = None;
+        let mut finite = 0;
+        let mut why = String::new();
         for _ in 0..self.max_evals {
             let mut trial: Vec<f64> = theta.iter().zip(d).map(|(x, d)| x + alpha * d).collect();
             if let Some(p) = problem.problem.as_ref() {
@@ -164,11 +168,16 @@ impl Lbfgs {
             let step: Vec<f64> = trial.iter().zip(theta).map(|(t, x)| t - x).collect();
             let slope = dot(g, &step); // g·(θ(α) − θ), negative along a descent path
             self.evaluations += 1;
-            let Some((c, grad)) = evaluate(problem, &trial) else {
-                self.rejected += 1;
-                alpha *= 0.1;
-                continue;
+            let (c, grad) = match evaluate(problem, &trial) {
+                Ok(point) => point,
+                Err(e) => {
+                    self.rejected += 1;
+                    why = e;
+                    alpha *= 0.1;
+                    continue;
+                }
             };
+            finite += 1;
             if c <= cost + self.c1 * slope && slope < 0.0 {
                 return Search::Accepted(Point {
                     theta: trial,
@@ -192,6 +201,13 @@ impl Lbfgs {
                 });
             }
             alpha *= t;
+        }
+        if finite == 0 && self.max_evals > 0 {
+            return Search::Rejected(format!(
+                "all {} evaluations of the line search failed, the last at a step of {:e} (the last: {why})",
+                self.max_evals,
+                alpha * 10.0 * d_max
+            ));
         }
         Search::Failed(best)
     }
@@ -226,8 +242,8 @@ impl<O: Objective> Solver<O, State> for Lbfgs {
             d = g.iter().map(|v| -v).collect();
         }
         let mut found = self.search(problem, &theta, cost, &g, &d);
-        if let Search::Failed(best) = &found {
-            let lower = best.as_ref().is_some_and(|b| b.cost < cost);
+        if matches!(found, Search::Failed(_) | Search::Rejected(_)) {
+            let lower = matches!(&found, Search::Failed(Some(b)) if b.cost < cost);
             if !lower && !self.s.is_empty() {
                 // Retry along −g with the curvature memory cleared.
                 self.s.clear();
@@ -239,6 +255,7 @@ impl<O: Objective> Solver<O, State> for Lbfgs {
         let next = match found {
             Search::Accepted(p) => p,
             Search::Failed(Some(p)) if p.cost < cost => p,
+            Search::Rejected(why) => return Err(Error::msg(format!("L-BFGS: {why}"))),
             Search::Failed(_) => {
                 let kv = argmin::kv!("evaluations" => self.evaluations - evals_before;);
                 return Ok((
@@ -257,6 +274,18 @@ impl<O: Objective> Solver<O, State> for Lbfgs {
             state.param(next.theta).cost(next.cost).gradient(next.grad),
             Some(kv),
         ))
+    }
+}
+
+impl crate::checkpoint::CheckFinite for Lbfgs {
+    fn non_finite(&self) -> Option<String> {
+        use crate::checkpoint::first_non_finite;
+        first_non_finite("L-BFGS step bounds", &[self.first_step, self.max_step]).or_else(|| {
+            self.s
+                .iter()
+                .chain(&self.y)
+                .find_map(|v| first_non_finite("L-BFGS curvature pair", v))
+        })
     }
 }
 

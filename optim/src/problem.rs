@@ -19,6 +19,13 @@ use argmin::core::{CostFunction, Error, Gradient};
 use std::cell::RefCell;
 use std::rc::Rc;
 
+/// The largest coordinate (m, any axis) a fitted vertex may take: a step that goes
+/// further is rejected like a failed render ([`MeshProblem::decode`]). Hidden scenes
+/// are metres across; a million metres only comes from a step size many orders of
+/// magnitude too large (and beyond it `f32` positions lose their millimetres, and
+/// `f64` overflow to infinity is near for `lr = 1e300`).
+pub const MAX_COORDINATE: f64 = 1e6;
+
 /// What a renderer gives the fit: the loss of a mesh against the measurement and its
 /// gradient.
 pub trait MeshObjective {
@@ -202,9 +209,13 @@ impl MeshProblem {
         if let Some(i) = mesh
             .vertices
             .iter()
-            .position(|p| p.iter().any(|c| !c.is_finite()))
+            .position(|p| p.iter().any(|c| !c.is_finite() || c.abs() > MAX_COORDINATE))
         {
-            return Err(format!("vertex {i} is not finite"));
+            let p = mesh.vertices[i];
+            return Err(format!(
+                "the step put vertex {i} at ({:e}, {:e}, {:e}) m, beyond the {MAX_COORDINATE:e} m any fitted surface may reach: the step size (lr) is far too large",
+                p[0], p[1], p[2]
+            ));
         }
         Ok(mesh)
     }

@@ -6,7 +6,9 @@
 //! Each iteration evaluates the new `θ` before accepting it (the cost argmin records
 //! belongs to the parameter it records). A step whose evaluation fails or is not
 //! finite (a NaN vertex, a render error) is rejected: `θ` stays, `η` halves, and the
-//! step is retried, up to [`Adam::max_retries`] times. Each candidate is projected onto
+//! step is retried, up to [`Adam::max_retries`] times, then the run ends with an error
+//! giving the last step's reason (e.g. a vertex beyond
+//! [`crate::problem::MAX_COORDINATE`]: a step size far too large). Each candidate is projected onto
 //! the feasible set first ([`Project`]: albedo in its bounds; projected gradient descent). The moments are not updated by
 //! a rejected step. The whole struct serialises, so checkpoints resume exactly.
 

@@ -423,6 +423,10 @@ fn remesh_edge(stage: &Stage, mesh: &Mesh) -> Option<f64> {
 }
 
 /// Runs `schedule` from `initial` (or, with `resume`, from the checkpoints in `dir`).
+/// `identity` lists what the checkpoints depend on besides the schedule and the initial
+/// mesh ([`full_identity`] adds those); a resume from checkpoints of another identity is
+/// refused, naming the components that differ.
+#[allow(clippy::too_many_arguments)]
 pub fn fit(
     initial: &Mesh,
     schedule: &Schedule,

@@ -25,7 +25,12 @@
 //!   rejected and shrinks the step tenfold, like [`crate::Adam`]'s rejected steps;
 //! - a search that finds no Armijo point takes the best point it evaluated if that is
 //!   lower, otherwise retries once along `−g` with the memory cleared, and otherwise ends
-//!   the stage (`SolverExit`) at the current parameters: no error, nothing lost.
+//!   the stage (`SolverExit`) at the current parameters: no error, nothing lost;
+//! - but a search none of whose evaluations succeeded (after the retry) is an error
+//!   carrying the last reason: every trial point, down to a thousand-billionth of the
+//!   first step, failed, which a step size many orders too large does (`lr = 1e300`: the
+//!   vertices beyond [`crate::problem::MAX_COORDINATE`]), and ending the stage quietly
+//!   there would pass the initial mesh off as a fit.
 //!
 //! The whole struct serialises, so checkpoints resume exactly.
 

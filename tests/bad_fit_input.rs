@@ -378,7 +378,7 @@ fn an_absurd_step_size_stops_the_fit_with_its_checkpoint_intact() {
             &["--config", config.to_str().unwrap()],
             Duration::from_secs(120),
         );
-        refused(&o, &[stage, "step size", "1e6 m"]);
+        refused(&o, &[stage, "step size (lr) is far too large", "outside"]);
         // The checkpoint of the start is intact: resuming fails the same way, not on it.
         let stage_bin = out.join("checkpoint/stage.bin");
         assert!(stage_bin.is_file());
@@ -459,5 +459,54 @@ fn retroreflective_with_a_monte_carlo_model_says_why() {
         );
         assert!(!stderr(&o).contains("initial mesh"), "{}", stderr(&o));
     }
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+#[test]
+fn a_measurement_of_nothing_is_refused_and_a_fit_of_nothing_warns() {
+    // The hidden square beyond the film's last bin: the demonstration target is zero
+    // (the fit used to end in "loss.png: cannot draw the chart").
+    let d = tmp_dir("fit-nothing");
+    let far = SceneSpec {
+        objects: vec![(square_obj([0.05, 0.02, 3.0], 0.3), 0.8, "lambertian")],
+        ..SceneSpec::default()
+    };
+    let scene = far.write(&d);
+    let config = d.join("schedule.toml");
+    std::fs::write(&config, SCHEDULE).unwrap();
+    let o = umbra_fit(
+        &scene,
+        &d.join("out"),
+        &["--config", config.to_str().unwrap(), "--init", "scene"],
+        Duration::from_secs(60),
+    );
+    refused(&o, &["the measurement is zero in every bin the fit uses"]);
+    // A fit whose surface returns nothing usable (here: a measurement a million times
+    // brighter than the surface can be, with --known-scale) warns instead of reporting
+    // the mesh as a result.
+    let s = spec().scene();
+    let bright: Vec<f32> = render(&s, umbra::scene::Model::Tri3, 1, 0)
+        .data
+        .iter()
+        .map(|v| v * 1e6)
+        .collect();
+    let mut r = FitRequest::new(Measurement::Array(bright), d.join("bright"));
+    r.known_scale = true;
+    r.background = Some(umbra::fit::Background::None);
+    r.init = "scene".into();
+    r.schedule = Some(
+        umbra::fit::request::parse_schedule("[[stage]]\niters = 1\nlr = 0.001\n", Path::new("s"))
+            .unwrap(),
+    );
+    let mut notes = Vec::new();
+    let quiet: optim::fit::Progress =
+        Rc::new(RefCell::new(|_: &optim::checkpoint::LossRecord| true));
+    run(s, &r, quiet, &mut |n| notes.push(n.to_string())).unwrap();
+    assert!(
+        notes
+            .iter()
+            .any(|n| n.starts_with("warning: the fitted surface returns no light the fit can use")),
+        "{notes:?}"
+    );
     let _ = std::fs::remove_dir_all(&d);
 }

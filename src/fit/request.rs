@@ -622,6 +622,17 @@ pub fn run(
         reflectance,
     };
     let report = fit(&scene, &measured, &cfg, &req.output, progress)?;
+    // A fit that ends where the surface returns nothing it can use has failed, whatever
+    // its exit status: say so rather than report a mesh as if it were one.
+    let no_signal =
+        report.final_loss >= 0.999 || (!req.known_scale && report.intensity.scale <= 0.0);
+    if no_signal {
+        log(&format!(
+            "warning: the fitted surface returns no light the fit can use (relative L2 {:.3}, scale {:.3e}): the fit failed; a step size (lr) too large for the scene throws the mesh out of view (see loss.csv)",
+            report.final_loss.sqrt(),
+            report.intensity.scale
+        ));
+    }
     let mut summary = Summary {
         iterations: report.history.len(),
         seconds: report.seconds,

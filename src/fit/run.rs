@@ -316,6 +316,13 @@ pub fn fit(
     let mut measured = measured.to_vec();
     let first = first_fitted_bin(&base, cfg.ignore_before_opl);
     zero_leading_bins(&mut measured, base.film.temporal_bins as usize, first);
+    if measured.iter().all(|&v| v == 0.0) {
+        return Err(Error::Invalid(format!(
+            "the measurement is zero in every bin the fit uses (from OPL {:.3} m): nothing to fit (a demonstration target is zero when the scene's hidden objects are beyond the film's last bin, OPL {:.3} m)",
+            base.film.start_opl + first as f32 * base.film.bin_width_opl,
+            base.film.start_opl + base.film.temporal_bins as f32 * base.film.bin_width_opl
+        )));
+    }
     let measured = &measured[..];
     let last_stage = cfg
         .schedule

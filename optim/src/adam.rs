@@ -6,7 +6,9 @@
 //! Each iteration evaluates the new `θ` before accepting it (the cost argmin records
 //! belongs to the parameter it records). A step whose evaluation fails or is not
 //! finite (a NaN vertex, a render error) is rejected: `θ` stays, `η` halves, and the
-//! step is retried, up to [`Adam::max_retries`] times. Each candidate is projected onto
+//! step is retried, up to [`Adam::max_retries`] times, then the run ends with an error
+//! giving the last step's reason (e.g. a vertex beyond
+//! [`crate::problem::MAX_COORDINATE`]: a step size far too large). Each candidate is projected onto
 //! the feasible set first ([`Project`]: albedo in its bounds; projected gradient descent). The moments are not updated by
 //! a rejected step. The whole struct serialises, so checkpoints resume exactly.
 
@@ -99,21 +101,33 @@ impl<O: Objective> Solver<O, State> for Adam {
             if let Some(p) = problem.problem.as_ref() {
                 p.project(&mut candidate);
             }
-            if let Some((cost, grad)) = evaluate(problem, &candidate) {
-                (self.m, self.v, self.t) = (m, v, t);
-                let kv = argmin::kv!("lr" => self.lr; "rejected" => rejected_now;);
-                return Ok((state.param(candidate).cost(cost).gradient(grad), Some(kv)));
-            }
+            let why = match evaluate(problem, &candidate) {
+                Ok((cost, grad)) => {
+                    (self.m, self.v, self.t) = (m, v, t);
+                    let kv = argmin::kv!("lr" => self.lr; "rejected" => rejected_now;);
+                    return Ok((state.param(candidate).cost(cost).gradient(grad), Some(kv)));
+                }
+                Err(why) => why,
+            };
             self.rejected += 1;
             rejected_now += 1;
             if rejected_now > self.max_retries {
                 return Err(Error::msg(format!(
-                    "Adam: {rejected_now} steps in a row gave a non-finite cost or a failed render (step size now {:e})",
+                    "Adam: {rejected_now} steps in a row failed, the step size halved down to {:e} (the last: {why})",
                     self.lr
                 )));
             }
             self.lr *= 0.5;
         }
+    }
+}
+
+impl crate::checkpoint::CheckFinite for Adam {
+    fn non_finite(&self) -> Option<String> {
+        use crate::checkpoint::first_non_finite;
+        first_non_finite("Adam step size", &[self.lr])
+            .or_else(|| first_non_finite("Adam first moment", &self.m))
+            .or_else(|| first_non_finite("Adam second moment", &self.v))
     }
 }
 

@@ -14,12 +14,27 @@
 //!   history, every `checkpoint_every` iterations (named per stage, so a stale file of
 //!   an earlier stage is never loaded into a later one).
 //!
+//! Both are [`crate::checkpoint`] envelopes (magic number, format version, checksum)
+//! stamped with the fit's [`Identity`]: the caller's components (Umbra: scene,
+//! measurement, model, options) plus `schedule` (its postcard bytes) and `initial mesh`
+//! (its bits). `resume` refuses a file written for another identity, naming what differs,
+//! and a damaged one, naming the file; a stage file whose mesh is empty, out of range or
+//! not finite is refused too. Temporaries left by a kill (`.stage.bin.tmp<pid>`,
+//! `.solver-<s>.bin.tmp<pid>`) are removed on every start; a fresh start also removes
+//! solver files left without their `stage.bin`.
+//!
+//! The schedule is checked first ([`Schedule::check`]): a negative step size, a zero
+//! downsampling factor and the like are refused before anything runs.
+//!
 //! Determinism: a stage's objective must give the same result for the same parameters
 //! (Umbra seeds its samples from the parameters), so the resumed and the uninterrupted
 //! runs evaluate the same sequence.
 
 use crate::adam::Adam;
-use crate::checkpoint::{write_atomic, History, LossRecord, SolverCheckpoint};
+use crate::checkpoint::{
+    self, hash_mesh, hash_postcard, mismatch_error, remove_stale_temporaries, write_atomic,
+    CheckFinite, History, Identity, Kind, LossRecord, SolverCheckpoint,
+};
 use crate::lbfgs::Lbfgs;
 use crate::mesh::Mesh;
 use crate::problem::{Breakdown, MeshObjective, MeshProblem, ProblemSettings};
@@ -122,6 +137,106 @@ fn default_every() -> u64 {
     5
 }
 
+impl Schedule {
+    /// Refuses a schedule that cannot mean what it says: the first problem as
+    /// `stage <i>: <field> = <value> must be …` (stages counted from 0, as in the loss
+    /// history), or `checkpoint_every = 0 …`.
+    pub fn check(&self) -> Result<(), String> {
+        if self.stages.is_empty() {
+            return Err("the schedule has no [[stage]]".into());
+        }
+        if self.checkpoint_every == 0 {
+            return Err(
+                "checkpoint_every = 0 must be at least 1 (iterations between checkpoints)".into(),
+            );
+        }
+        for (i, s) in self.stages.iter().enumerate() {
+            s.check().map_err(|e| format!("stage {i}: {e}"))?;
+        }
+        Ok(())
+    }
+
+    /// Iterations of all stages.
+    pub fn total_iters(&self) -> u64 {
+        self.stages.iter().map(|s| s.iters).sum()
+    }
+}
+
+impl Stage {
+    /// [`Schedule::check`] for one stage.
+    pub fn check(&self) -> Result<(), String> {
+        let finite_at_least = |name: &str, v: f64, what: &str| {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                Err(format!("{name} = {v} must be {what}"))
+            }
+        };
+        if self.iters == 0 {
+            return Err("iters = 0 must be at least 1 (remove the stage to skip it)".into());
+        }
+        match self.solver {
+            SolverKind::Adam if !(self.lr.is_finite() && self.lr > 0.0) => {
+                return Err(format!(
+                    "lr = {} must be positive and finite (Adam's step size, m)",
+                    self.lr
+                ))
+            }
+            SolverKind::Lbfgs => finite_at_least(
+                "lr",
+                self.lr,
+                "positive and finite (L-BFGS's first step, m; 0 for the default 0.01)",
+            )?,
+            _ => {}
+        }
+        finite_at_least(
+            "large_steps",
+            self.large_steps,
+            "finite and >= 0 (λ of the large-steps parameterisation; 0: off)",
+        )?;
+        finite_at_least(
+            "laplacian",
+            self.laplacian,
+            "finite and >= 0 (weight of the smoothness term)",
+        )?;
+        if !(self.albedo_step.is_finite() && self.albedo_step > 0.0) {
+            return Err(format!(
+                "albedo_step = {} must be positive and finite",
+                self.albedo_step
+            ));
+        }
+        for (name, v) in [
+            ("remesh", self.remesh),
+            ("remesh_factor", self.remesh_factor),
+        ] {
+            if let Some(v) = v {
+                if !(v.is_finite() && v > 0.0) {
+                    return Err(format!("{name} = {v} must be positive and finite"));
+                }
+            }
+        }
+        for (name, v) in [
+            ("time_downsample", self.time_downsample),
+            ("scan_downsample", self.scan_downsample),
+        ] {
+            if v == 0 {
+                return Err(format!(
+                    "{name} = 0 must be at least 1 (1: full resolution)"
+                ));
+            }
+        }
+        if self.spp == Some(0) {
+            return Err("spp = 0 must be at least 1".into());
+        }
+        if !self.fit_positions && !self.fit_albedo {
+            return Err(
+                "fit_positions = false with fit_albedo = false fits nothing: set one".into(),
+            );
+        }
+        Ok(())
+    }
+}
+
 /// Builds each stage's objective (the renderer set up at the stage's resolution).
 pub trait ObjectiveFactory {
     fn objective(&mut self, stage: &Stage, index: usize) -> Result<Box<dyn MeshObjective>, String>;
@@ -136,6 +251,18 @@ pub enum FitError {
     Io(String),
     #[error("stage {stage}: {message}")]
     Stage { stage: usize, message: String },
+    #[error("stage {stage}, iteration {iteration}: {message}")]
+    Step {
+        stage: usize,
+        /// Over the whole fit, from 1 (as in the loss history).
+        iteration: u64,
+        message: String,
+    },
+    #[error("schedule: {0}")]
+    Schedule(String),
+    /// A checkpoint that cannot be resumed (damaged, or written for another fit).
+    #[error("{0}")]
+    Checkpoint(String),
     #[error("interrupted at iteration {iteration}; the last checkpoint is in {dir} (run again with --resume)")]
     Interrupted { iteration: u64, dir: PathBuf },
 }
@@ -161,9 +288,95 @@ fn io_err(path: &Path, e: impl std::fmt::Display) -> FitError {
     FitError::Io(format!("{}: {e}", path.display()))
 }
 
-fn save_stage(path: &Path, s: &StageFile) -> Result<(), FitError> {
-    let bytes = postcard::to_stdvec(s).map_err(|e| io_err(path, e))?;
+fn save_stage(path: &Path, identity: &Identity, s: &StageFile) -> Result<(), FitError> {
+    let bytes = checkpoint::encode(Kind::Stage, identity, s).map_err(|e| io_err(path, e))?;
     write_atomic(path, &bytes).map_err(|e| io_err(path, e))
+}
+
+/// Reads `stage.bin` for a resume: refused if damaged, written for another identity,
+/// or holding a mesh that cannot be fitted.
+fn load_stage(path: &Path, identity: &Identity, stages: usize) -> Result<StageFile, FitError> {
+    if !path.exists() {
+        return Err(io_err(path, "cannot resume: no checkpoint here"));
+    }
+    let (saved, s): (Identity, StageFile) =
+        checkpoint::read(path, Kind::Stage).map_err(FitError::Checkpoint)?;
+    if let Some(d) = identity.differences(&saved) {
+        return Err(FitError::Checkpoint(mismatch_error(path, &d)));
+    }
+    let bad = |what: String| {
+        FitError::Checkpoint(format!(
+            "{}: corrupt checkpoint: {what}; delete it",
+            path.display()
+        ))
+    };
+    if s.stage > stages {
+        return Err(bad(format!("stage {} of a schedule of {stages}", s.stage)));
+    }
+    let m = &s.mesh;
+    if m.vertices.len() < 3 || m.faces.is_empty() {
+        return Err(bad(format!(
+            "its mesh has {} vertices and {} faces",
+            m.vertices.len(),
+            m.faces.len()
+        )));
+    }
+    if let Some(f) = m
+        .faces
+        .iter()
+        .find(|f| f.iter().any(|&i| i as usize >= m.vertices.len()))
+    {
+        return Err(bad(format!(
+            "face {f:?} of a mesh of {} vertices",
+            m.vertices.len()
+        )));
+    }
+    if !m.vertex_values.is_empty() && m.vertex_values.len() != m.vertices.len() {
+        return Err(bad(format!(
+            "{} vertex values for {} vertices",
+            m.vertex_values.len(),
+            m.vertices.len()
+        )));
+    }
+    let flat: Vec<f64> = m.vertices.iter().flatten().copied().collect();
+    let what = checkpoint::first_non_finite("mesh vertex coordinate", &flat)
+        .or_else(|| checkpoint::first_non_finite("mesh vertex value", &m.vertex_values))
+        .or_else(|| s.history.iter().find_map(|r| r.non_finite()));
+    if let Some(what) = what {
+        return Err(bad(format!("{what} is not finite")));
+    }
+    Ok(s)
+}
+
+/// The identity of a fit's checkpoints: the caller's components, the schedule and the
+/// initial mesh.
+pub fn full_identity(identity: &Identity, schedule: &Schedule, initial: &Mesh) -> Identity {
+    identity
+        .clone()
+        .with(
+            "schedule",
+            hash_postcard(schedule),
+            format!(
+                "{} stages, {} iterations",
+                schedule.stages.len(),
+                schedule.total_iters()
+            ),
+        )
+        .with(
+            "initial mesh",
+            hash_mesh(initial),
+            format!(
+                "{} vertices, {} faces",
+                initial.vertices.len(),
+                initial.faces.len()
+            ),
+        )
+}
+
+/// The identity a checkpoint file in `dir` (`stage.bin`) was written with, checking
+/// only its envelope (magic number, version, checksum).
+pub fn checkpoint_identity(dir: &Path) -> Result<Identity, String> {
+    checkpoint::read_identity(&dir.join("stage.bin"), Kind::Stage)
 }
 
 /// Called after every iteration with its record; returning `false` stops the fit (a
@@ -210,6 +423,10 @@ fn remesh_edge(stage: &Stage, mesh: &Mesh) -> Option<f64> {
 }
 
 /// Runs `schedule` from `initial` (or, with `resume`, from the checkpoints in `dir`).
+/// `identity` lists what the checkpoints depend on besides the schedule and the initial
+/// mesh ([`full_identity`] adds those); a resume from checkpoints of another identity is
+/// refused, naming the components that differ.
+#[allow(clippy::too_many_arguments)]
 pub fn fit(
     initial: &Mesh,
     schedule: &Schedule,
@@ -217,24 +434,30 @@ pub fn fit(
     remesher: Remesher,
     dir: &Path,
     resume: bool,
+    identity: &Identity,
     progress: Progress,
 ) -> Result<FitOutcome, FitError> {
+    schedule.check().map_err(FitError::Schedule)?;
+    let identity = &full_identity(identity, schedule, initial);
     let stage_path = dir.join("stage.bin");
+    remove_stale_temporaries(dir);
     let mut current = if resume {
-        let bytes = std::fs::read(&stage_path).map_err(|e| {
-            io_err(
-                &stage_path,
-                format!("cannot resume: {e} (no checkpoint here?)"),
-            )
-        })?;
-        postcard::from_bytes::<StageFile>(&bytes)
-            .map_err(|e| io_err(&stage_path, format!("not a readable checkpoint: {e}")))?
+        load_stage(&stage_path, identity, schedule.stages.len())?
     } else {
         if stage_path.exists() {
             return Err(io_err(
                 &stage_path,
                 "a checkpoint of an earlier fit is here: pass --resume to continue it, or choose another output directory",
             ));
+        }
+        // Solver files without their stage.bin belong to no fit that can be resumed.
+        if let Ok(entries) = std::fs::read_dir(dir) {
+            for e in entries.flatten() {
+                let name = e.file_name().to_string_lossy().into_owned();
+                if name.starts_with("solver-") && name.ends_with(".bin") {
+                    let _ = std::fs::remove_file(e.path());
+                }
+            }
         }
         let first = schedule.stages.first();
         let mesh = match first.and_then(|s| s.remesh) {
@@ -249,7 +472,7 @@ pub fn fit(
             history: Vec::new(),
             rejected: 0,
         };
-        save_stage(&stage_path, &s)?;
+        save_stage(&stage_path, identity, &s)?;
         s
     };
     while current.stage < schedule.stages.len() {
@@ -259,10 +482,13 @@ pub fn fit(
             stage: index,
             message,
         };
-        if !stage.fit_positions && !stage.fit_albedo {
-            return Err(stage_err(
-                "fits nothing: set fit_positions or fit_albedo".into(),
-            ));
+        let solver_path = dir.join(format!("solver-{index}.bin"));
+        if solver_path.exists() {
+            let saved = checkpoint::read_identity(&solver_path, Kind::Solver)
+                .map_err(FitError::Checkpoint)?;
+            if let Some(d) = identity.differences(&saved) {
+                return Err(FitError::Checkpoint(mismatch_error(&solver_path, &d)));
+            }
         }
         let objective = factory.objective(stage, index).map_err(stage_err)?;
         let settings = ProblemSettings {
@@ -283,18 +509,27 @@ pub fn fit(
             progress: progress.clone(),
         };
         let checkpoint = SolverCheckpoint {
-            path: dir.join(format!("solver-{index}.bin")),
+            path: solver_path,
             every: schedule.checkpoint_every,
             history: history.clone(),
+            identity: identity.clone(),
         };
         let run = |e: Error| -> FitError {
+            let done = history.borrow().len() as u64;
             if e.to_string() == "interrupted" {
                 FitError::Interrupted {
-                    iteration: history.borrow().len() as u64,
+                    iteration: done,
                     dir: dir.to_path_buf(),
                 }
             } else {
-                stage_err(e.to_string())
+                FitError::Step {
+                    stage: index,
+                    iteration: done + 1,
+                    message: format!(
+                        "{e}; the fit stopped, its last checkpoint is in {}",
+                        dir.display()
+                    ),
+                }
             }
         };
         let (problem, theta, rejected) = match stage.solver {
@@ -343,7 +578,7 @@ pub fn fit(
             history: history.borrow().clone(),
             rejected: current.rejected + rejected,
         };
-        save_stage(&stage_path, &current)?;
+        save_stage(&stage_path, identity, &current)?;
         let _ = std::fs::remove_file(dir.join(format!("solver-{index}.bin")));
     }
     Ok(FitOutcome {

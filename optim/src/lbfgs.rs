@@ -25,7 +25,12 @@
 //!   rejected and shrinks the step tenfold, like [`crate::Adam`]'s rejected steps;
 //! - a search that finds no Armijo point takes the best point it evaluated if that is
 //!   lower, otherwise retries once along `−g` with the memory cleared, and otherwise ends
-//!   the stage (`SolverExit`) at the current parameters: no error, nothing lost.
+//!   the stage (`SolverExit`) at the current parameters: no error, nothing lost;
+//! - but a search none of whose evaluations succeeded (after the retry) is an error
+//!   carrying the last reason: every trial point, down to a thousand-billionth of the
+//!   first step, failed, which a step size many orders too large does (`lr = 1e300`: the
+//!   vertices beyond [`crate::problem::MAX_COORDINATE`]), and ending the stage quietly
+//!   there would pass the initial mesh off as a fit.
 //!
 //! The whole struct serialises, so checkpoints resume exactly.
 
@@ -134,6 +139,8 @@ enum Search {
     Accepted(Point),
     /// No Armijo point; the lowest point evaluated, if any was finite.
     Failed(Option<Point>),
+    /// Every evaluation failed or was not finite: the last reason.
+    Rejected(String),
 }
 
 impl Lbfgs {
@@ -156,6 +163,8 @@ impl Lbfgs {
             1.0_f64.min(self.max_step / d_max)
         };
         let mut best: Option<Point> = None;
+        let mut finite = 0;
+        let mut why = String::new();
         for _ in 0..self.max_evals {
             let mut trial: Vec<f64> = theta.iter().zip(d).map(|(x, d)| x + alpha * d).collect();
             if let Some(p) = problem.problem.as_ref() {
@@ -164,11 +173,16 @@ impl Lbfgs {
             let step: Vec<f64> = trial.iter().zip(theta).map(|(t, x)| t - x).collect();
             let slope = dot(g, &step); // g·(θ(α) − θ), negative along a descent path
             self.evaluations += 1;
-            let Some((c, grad)) = evaluate(problem, &trial) else {
-                self.rejected += 1;
-                alpha *= 0.1;
-                continue;
+            let (c, grad) = match evaluate(problem, &trial) {
+                Ok(point) => point,
+                Err(e) => {
+                    self.rejected += 1;
+                    why = e;
+                    alpha *= 0.1;
+                    continue;
+                }
             };
+            finite += 1;
             if c <= cost + self.c1 * slope && slope < 0.0 {
                 return Search::Accepted(Point {
                     theta: trial,
@@ -192,6 +206,13 @@ impl Lbfgs {
                 });
             }
             alpha *= t;
+        }
+        if finite == 0 && self.max_evals > 0 {
+            return Search::Rejected(format!(
+                "all {} evaluations of the line search failed, the last at a step of {:e} (the last: {why})",
+                self.max_evals,
+                alpha * 10.0 * d_max
+            ));
         }
         Search::Failed(best)
     }
@@ -226,8 +247,8 @@ impl<O: Objective> Solver<O, State> for Lbfgs {
             d = g.iter().map(|v| -v).collect();
         }
         let mut found = self.search(problem, &theta, cost, &g, &d);
-        if let Search::Failed(best) = &found {
-            let lower = best.as_ref().is_some_and(|b| b.cost < cost);
+        if matches!(found, Search::Failed(_) | Search::Rejected(_)) {
+            let lower = matches!(&found, Search::Failed(Some(b)) if b.cost < cost);
             if !lower && !self.s.is_empty() {
                 // Retry along −g with the curvature memory cleared.
                 self.s.clear();
@@ -239,6 +260,7 @@ impl<O: Objective> Solver<O, State> for Lbfgs {
         let next = match found {
             Search::Accepted(p) => p,
             Search::Failed(Some(p)) if p.cost < cost => p,
+            Search::Rejected(why) => return Err(Error::msg(format!("L-BFGS: {why}"))),
             Search::Failed(_) => {
                 let kv = argmin::kv!("evaluations" => self.evaluations - evals_before;);
                 return Ok((
@@ -257,6 +279,18 @@ impl<O: Objective> Solver<O, State> for Lbfgs {
             state.param(next.theta).cost(next.cost).gradient(next.grad),
             Some(kv),
         ))
+    }
+}
+
+impl crate::checkpoint::CheckFinite for Lbfgs {
+    fn non_finite(&self) -> Option<String> {
+        use crate::checkpoint::first_non_finite;
+        first_non_finite("L-BFGS step bounds", &[self.first_step, self.max_step]).or_else(|| {
+            self.s
+                .iter()
+                .chain(&self.y)
+                .find_map(|v| first_non_finite("L-BFGS curvature pair", v))
+        })
     }
 }
 

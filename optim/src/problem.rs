@@ -19,6 +19,13 @@ use argmin::core::{CostFunction, Error, Gradient};
 use std::cell::RefCell;
 use std::rc::Rc;
 
+/// The largest coordinate (m, any axis) a fitted vertex may take, whatever the
+/// objective's [`MeshObjective::bounds`]: a step that goes further is rejected like a
+/// failed render ([`MeshProblem::decode`]). Hidden scenes are metres across; a million
+/// metres only comes from a step size many orders of magnitude too large (and beyond
+/// it `f32` positions lose their millimetres).
+pub const MAX_COORDINATE: f64 = 1e6;
+
 /// What a renderer gives the fit: the loss of a mesh against the measurement and its
 /// gradient.
 pub trait MeshObjective {
@@ -26,6 +33,15 @@ pub trait MeshObjective {
     /// when `mesh.vertex_values` is not empty, every vertex value. An `Err` (bad
     /// geometry, a render that failed) makes the optimiser reject the step.
     fn evaluate(&mut self, mesh: &Mesh) -> Result<Evaluation, String>;
+
+    /// The box (`[min, max]` corners, m) outside which the measurement cannot see a
+    /// surface, with a sentence saying what it is; a step that puts a vertex outside it
+    /// (or outside the initial mesh's own box, whichever is larger) is rejected before
+    /// [`MeshObjective::evaluate`] sees it. `None` (the default): only
+    /// [`MAX_COORDINATE`] bounds the vertices.
+    fn bounds(&self) -> Option<([[f64; 3]; 2], String)> {
+        None
+    }
 }
 
 /// One evaluation of a [`MeshObjective`].
@@ -81,6 +97,10 @@ pub struct MeshProblem {
     h: f64,
     cache: RefCell<Option<Cache>>,
     last: Rc<RefCell<Breakdown>>,
+    /// Where vertices may go ([`MeshObjective::bounds`] grown to the template's box,
+    /// within ±[`MAX_COORDINATE`]) and what that region is.
+    bounds: [[f64; 3]; 2],
+    bounds_what: String,
 }
 
 impl MeshProblem {
@@ -94,7 +114,19 @@ impl MeshProblem {
         if settings.fit_values && template.vertex_values.is_empty() {
             template.vertex_values = vec![1.0; template.vertices.len()];
         }
+        let (mut bounds, bounds_what) = objective.bounds().unwrap_or((
+            [[-MAX_COORDINATE; 3], [MAX_COORDINATE; 3]],
+            format!("the ±{MAX_COORDINATE:e} m any fitted surface may reach"),
+        ));
+        for p in &mesh.vertices {
+            for k in 0..3 {
+                bounds[0][k] = bounds[0][k].min(p[k]).max(-MAX_COORDINATE);
+                bounds[1][k] = bounds[1][k].max(p[k]).min(MAX_COORDINATE);
+            }
+        }
         MeshProblem {
+            bounds,
+            bounds_what,
             objective: RefCell::new(objective),
             lap: Laplacian::new(mesh),
             h: mean_edge(mesh).max(1e-9),
@@ -199,12 +231,17 @@ impl MeshProblem {
                 .map(|a| (k * a).clamp(0.0, 1.0))
                 .collect();
         }
+        let [lo, hi] = self.bounds;
         if let Some(i) = mesh
             .vertices
             .iter()
-            .position(|p| p.iter().any(|c| !c.is_finite()))
+            .position(|p| (0..3).any(|k| !(p[k] >= lo[k] && p[k] <= hi[k])))
         {
-            return Err(format!("vertex {i} is not finite"));
+            let p = mesh.vertices[i];
+            return Err(format!(
+                "the step put vertex {i} at ({:.3e}, {:.3e}, {:.3e}) m, outside [{:.3}, {:.3}] x [{:.3}, {:.3}] x [{:.3}, {:.3}] m ({}): the step size (lr) is far too large",
+                p[0], p[1], p[2], lo[0], hi[0], lo[1], hi[1], lo[2], hi[2], self.bounds_what
+            ));
         }
         Ok(mesh)
     }

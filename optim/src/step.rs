@@ -21,16 +21,9 @@ impl<T> Objective for T where
 {
 }
 
-/// Cost and gradient at `theta`, or `None` when either fails or is not finite.
+/// Cost and gradient at `theta`, or the reason (the renderer's own message) when either
+/// fails or is not finite.
 pub(crate) fn evaluate<O: Objective>(
-    problem: &mut Problem<O>,
-    theta: &Vec<f64>,
-) -> Option<(f64, Vec<f64>)> {
-    evaluate_or_why(problem, theta).ok()
-}
-
-/// [`evaluate`], with the reason when it fails (the renderer's own message).
-fn evaluate_or_why<O: Objective>(
     problem: &mut Problem<O>,
     theta: &Vec<f64>,
 ) -> Result<(f64, Vec<f64>), String> {
@@ -59,7 +52,7 @@ pub(crate) fn start<O: Objective>(
     if let Some(p) = problem.problem.as_ref() {
         p.project(&mut theta);
     }
-    let (cost, grad) = evaluate_or_why(problem, &theta)
+    let (cost, grad) = evaluate(problem, &theta)
         .map_err(|why| Error::msg(format!("the initial mesh cannot be evaluated: {why}")))?;
     Ok(state.param(theta).cost(cost).gradient(grad))
 }

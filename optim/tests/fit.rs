@@ -133,6 +133,7 @@ fn run(
         &no_remesh,
         out,
         resume,
+        &optim::checkpoint::Identity::default(),
         progress,
     )
 }

@@ -119,6 +119,7 @@ pub fn fit<'py>(
     let failure: Arc<Mutex<Option<PyErr>>> = Arc::default();
     let callback = progress.map(Arc::new);
     let base = scene.inner.clone();
+    let notes: Arc<Mutex<Vec<String>>> = Arc::default();
     let outcome = run_interruptible(py, threads, |work| {
         let (failure, work) = (failure.clone(), work.clone());
         let report: optim::fit::Progress = Rc::new(RefCell::new(move |r: &LossRecord| {
@@ -147,8 +148,22 @@ pub fn fit<'py>(
                 }
             })
         }));
-        run(base, &req, report, &mut |_| {})
+        let notes = notes.clone();
+        run(base, &req, report, &mut |note: &str| {
+            if let Some(w) = note.strip_prefix("warning: ") {
+                notes
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .push(w.to_string());
+            }
+        })
     });
+    // The fit's warnings (e.g. noisy Monte Carlo gradients) as Python UserWarnings.
+    for w in notes.lock().unwrap_or_else(|p| p.into_inner()).drain(..) {
+        let category = py.get_type::<pyo3::exceptions::PyUserWarning>();
+        let text = std::ffi::CString::new(w).unwrap_or_default();
+        PyErr::warn(py, &category, &text, 1)?;
+    }
     if let Some(e) = failure.lock().unwrap_or_else(|p| p.into_inner()).take() {
         return Err(e);
     }

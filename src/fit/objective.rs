@@ -184,6 +184,37 @@ impl UmbraObjective {
 }
 
 impl MeshObjective for UmbraObjective {
+    /// The relay wall's box widened on every side by half the film's longest optical
+    /// path, grown to hold the laser and the detector: a hidden point's path leaves the
+    /// wall and returns to it, so its OPL is at least twice its distance from the wall,
+    /// and a surface farther than that adds nothing to any bin. A vertex out there is a
+    /// step gone wild (and `tri3`, which splits triangles into pieces of about a bin,
+    /// would spend minutes on its metres-long triangles).
+    fn bounds(&self) -> Option<([[f64; 3]; 2], String)> {
+        let s = &self.scene;
+        let w = &s.wall;
+        let reach =
+            s.film.start_opl as f64 + s.film.temporal_bins as f64 * s.film.bin_width_opl as f64;
+        let mut b = [[f64::INFINITY; 3], [f64::NEG_INFINITY; 3]];
+        let mut grow = |p: Vec3, margin: f64| {
+            for k in 0..3 {
+                b[0][k] = b[0][k].min(p[k] as f64 - margin);
+                b[1][k] = b[1][k].max(p[k] as f64 + margin);
+            }
+        };
+        for (u, v) in [(-0.5, -0.5), (-0.5, 0.5), (0.5, -0.5), (0.5, 0.5)] {
+            grow(w.center + u * w.axis_u + v * w.axis_v, 0.5 * reach);
+        }
+        grow(s.laser.origin, 0.0);
+        grow(s.detector.origin, 0.0);
+        Some((
+            b,
+            format!(
+                "the relay wall widened by half the film's longest path, {reach:.3} m, and the laser and detector: the measurement sees nothing beyond"
+            ),
+        ))
+    }
+
     fn evaluate(&mut self, mesh: &Mesh) -> Result<Evaluation, String> {
         let f = self.forward(mesh).map_err(|e| e.to_string())?;
         let g = adjoint::gradient(&f.scene, &f.geom, &f.opts, &f.adjoint, None)

@@ -119,14 +119,29 @@ impl FitRequest {
     }
 }
 
-/// A schedule from TOML text (`[[stage]]` tables); `origin` names it in errors.
+/// A schedule from TOML text (`[[stage]]` tables); `origin` names it in errors, which
+/// name the stage (from 0) and the field: `schedule.toml: stage 2: lr = -0.01 must be
+/// positive and finite (…)`.
 pub fn parse_schedule(text: &str, origin: &Path) -> Result<Schedule> {
     let s: Schedule = toml::from_str(text)
         .map_err(|e| Error::scene(origin, format!("not a fit schedule: {e}")))?;
-    if s.stages.is_empty() {
-        return Err(Error::scene(origin, "the schedule has no [[stage]]"));
-    }
+    check_schedule(&s).map_err(|e| Error::scene(origin, e))?;
     Ok(s)
+}
+
+/// [`Schedule::check`] and the stages' model names.
+pub fn check_schedule(s: &Schedule) -> std::result::Result<(), String> {
+    s.check()?;
+    for (i, stage) in s.stages.iter().enumerate() {
+        if let Some(name) = &stage.model {
+            if Model::parse(name).is_none_or(|m| m == Model::Auto) {
+                return Err(format!(
+                    "stage {i}: model = '{name}' is not one of tri3, mc3, path"
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Chamfer distances to the truth (mm); "seen" = the truth's surface seen from the
@@ -202,6 +217,77 @@ fn render_target(scene: &Scene, spp: u32, out: &Path) -> Result<Vec<f32>> {
     let t = Renderer::new(scene, &geom, &opts)?.render(None)?;
     crate::io::write_npy(&out.join("target.npy"), &t)?;
     Ok(t.data)
+}
+
+/// A warning when a stage fits with a Monte Carlo model (`mc3`, `path`): their
+/// gradients carry the render's noise, and on the default demonstration the default
+/// schedule does not converge with them at any affordable sample count
+/// (docs/FITTING.md, "Monte Carlo models"), where the noise-free `tri3` does.
+fn monte_carlo_warning(
+    n: &dyn Fn(&str) -> String,
+    model: Model,
+    spp: u32,
+    schedule: &Schedule,
+) -> Option<String> {
+    let stage_models = schedule.stages.iter().map(|s| {
+        let m = s.model.as_deref().and_then(Model::parse).unwrap_or(model);
+        (m, s.spp.unwrap_or(spp))
+    });
+    let (worst, spp) = stage_models
+        .filter(|(m, _)| matches!(m, Model::Mc3 | Model::Path))
+        .min_by_key(|(_, spp)| *spp)?;
+    Some(format!(
+        "warning: {} {} fits with Monte Carlo gradients ({spp} spp): they are noisy, and the \
+         fit may not converge (measured on the default demonstration: seen Chamfer 67 mm \
+         with mc3 at 16 spp, 24 mm at 1024 spp, 14 mm at 4096 spp in 5 minutes, against \
+         1.6 mm with tri3 in 95 s; docs/FITTING.md); fit with {} tri3 (noise-free, the \
+         default) unless you need {}'s light transport",
+        n("model"),
+        worst.name(),
+        n("model"),
+        worst.name()
+    ))
+}
+
+/// On a resume of the demonstration: the target written by the run that made the
+/// checkpoint (`target.npy`), if it is there, has the scene's shape and is the
+/// measurement the checkpoint records (same hash); else `None` with a note, and the
+/// target is rendered again.
+fn saved_target(
+    scene: &Scene,
+    out: &Path,
+    identity: &optim::checkpoint::Identity,
+    log: &mut dyn FnMut(&str),
+) -> Option<Vec<f32>> {
+    let path = out.join("target.npy");
+    if !path.exists() {
+        log(&format!(
+            "{} is missing: rendering the target again",
+            path.display()
+        ));
+        return None;
+    }
+    let why = match crate::io::read_npy(&path) {
+        Err(e) => format!("unreadable ({e})"),
+        Ok(t) if t.shape != scene.output_shape() => format!(
+            "of shape {:?}, the scene renders {:?}",
+            t.shape,
+            scene.output_shape()
+        ),
+        Ok(t) => {
+            let want = identity.get("measurement").map(|c| c.hash);
+            if want == Some(super::run::measurement_hash(&t.data)) {
+                log(&format!("target read back from {}", path.display()));
+                return Some(t.data);
+            }
+            "not the measurement the checkpoint was fitted to".into()
+        }
+    };
+    log(&format!(
+        "{} is {why}: rendering the target again",
+        path.display()
+    ));
+    None
 }
 
 /// The detector response of `choice` (none, direct, or a `.npy` of taps).
@@ -288,10 +374,18 @@ pub fn run(
             return Err(Error::Invalid(format!("{}: must be at least 1", n(name))));
         }
     }
-    let mut schedule = req.schedule.clone().unwrap_or_else(default_schedule);
-    if schedule.stages.is_empty() {
-        return Err(Error::Invalid("the schedule has no stage".into()));
+    if let Some(v) = req.ignore_before.filter(|v| !v.is_finite()) {
+        return Err(Error::Invalid(format!(
+            "{}: {v} is not an optical path length (m, finite)",
+            n("ignore_before")
+        )));
     }
+    let mut schedule = req.schedule.clone().unwrap_or_else(default_schedule);
+    let schedule_name = match req.front {
+        Front::Cli => "--config",
+        Front::Python => "schedule",
+    };
+    check_schedule(&schedule).map_err(|e| Error::Invalid(format!("{schedule_name}: {e}")))?;
     if let Some(total) = req.iters {
         let old: u64 = schedule.stages.iter().map(|s| s.iters).sum::<u64>().max(1);
         for s in &mut schedule.stages {
@@ -307,6 +401,22 @@ pub fn run(
                 req.model
             ))
         })?;
+    let checkpoint_dir = req.output.join("checkpoint");
+    // A resume fails early on a checkpoint that is not there or damaged (before any
+    // target is rendered); what it was written for is compared in the fit.
+    let resumed = if req.resume {
+        let stage = checkpoint_dir.join("stage.bin");
+        if !stage.exists() {
+            return Err(Error::Invalid(format!(
+                "{}: cannot resume: no checkpoint here (run without {})",
+                stage.display(),
+                n("resume")
+            )));
+        }
+        Some(optim::fit::checkpoint_identity(&checkpoint_dir).map_err(Error::Invalid)?)
+    } else {
+        None
+    };
     std::fs::create_dir_all(&req.output).map_err(|e| Error::io(&req.output, e))?;
     let file = match &req.measurement {
         Measurement::File(p) => Some(p.as_path()),
@@ -329,11 +439,19 @@ pub fn run(
         }
         Measurement::Demo { target_spp } => {
             let truth = truth_of(&scene)?;
-            log(&format!(
-                "no measurement: rendering the scene's hidden objects ({} triangles) with the path model at {target_spp} spp as the target",
-                truth.as_ref().map_or(0, |t| t.0.faces.len()),
-            ));
-            let data = render_target(&scene, *target_spp, &req.output)?;
+            let saved = resumed
+                .as_ref()
+                .and_then(|id| saved_target(&scene, &req.output, id, log));
+            let data = match saved {
+                Some(data) => data,
+                None => {
+                    log(&format!(
+                        "no measurement: rendering the scene's hidden objects ({} triangles) with the path model at {target_spp} spp as the target",
+                        truth.as_ref().map_or(0, |t| t.0.faces.len()),
+                    ));
+                    render_target(&scene, *target_spp, &req.output)?
+                }
+            };
             (scene, data, truth)
         }
     };
@@ -395,6 +513,47 @@ pub fn run(
             ))
         })?,
     };
+    if reflectance == Reflectance::Retroreflective {
+        let refuse = |problem: String| {
+            let whose = if req.reflectance.is_none() {
+                " (the scene's first hidden object's)"
+            } else {
+                ""
+            };
+            Error::Invalid(format!(
+                "{} retroreflective{whose}: {problem}",
+                n("reflectance")
+            ))
+        };
+        if scene.capture != crate::scene::CaptureType::Confocal {
+            return Err(refuse(format!(
+                "the retroreflective model is confocal only, and this capture is {}",
+                scene.capture.name()
+            )));
+        }
+        if model != Model::Tri3 {
+            return Err(refuse(format!(
+                "only the tri3 model renders retroreflective surfaces, not {} {} (use {} tri3, or {} lambertian)",
+                n("model"),
+                model.name(),
+                n("model"),
+                n("reflectance")
+            )));
+        }
+        if let Some((i, name)) = schedule.stages.iter().enumerate().find_map(|(i, s)| {
+            s.model
+                .as_deref()
+                .filter(|m| Model::parse(m) != Some(Model::Tri3))
+                .map(|m| (i, m))
+        }) {
+            return Err(refuse(format!(
+                "only the tri3 model renders retroreflective surfaces, and the schedule's stage {i} has model = '{name}'"
+            )));
+        }
+    }
+    if let Some(note) = monte_carlo_warning(&n, model, req.spp, &schedule) {
+        log(&note);
+    }
     let irf_choice = req
         .irf
         .clone()
@@ -463,6 +622,17 @@ pub fn run(
         reflectance,
     };
     let report = fit(&scene, &measured, &cfg, &req.output, progress)?;
+    // A fit that ends where the surface returns nothing it can use has failed, whatever
+    // its exit status: say so rather than report a mesh as if it were one.
+    let no_signal =
+        report.final_loss >= 0.999 || (!req.known_scale && report.intensity.scale <= 0.0);
+    if no_signal {
+        log(&format!(
+            "warning: the fitted surface returns no light the fit can use (relative L2 {:.3}, scale {:.3e}): the fit failed; a step size (lr) too large for the scene throws the mesh out of view (see loss.csv)",
+            report.final_loss.sqrt(),
+            report.intensity.scale
+        ));
+    }
     let mut summary = Summary {
         iterations: report.history.len(),
         seconds: report.seconds,

@@ -10,7 +10,9 @@
 //!   (`reconstruction` module doc; a failure to draw it is a warning, not an error);
 //! - `transients.png`: measured and fitted transients side by side (streak images of
 //!   the middle scan row, the fitted one times the fitted scale), and their difference;
-//! - `checkpoint/`: the resumable state (see `optim::fit`).
+//! - `checkpoint/`: the resumable state (see `optim::fit`), stamped with the fit's
+//!   identity ([`identity`]): a resume with another scene, measurement, model or option
+//!   is refused, naming what differs.
 
 use super::init::{depth_from_data, plane, sphere};
 use super::intensity::{Intensity, IntensityModel};
@@ -21,7 +23,7 @@ use crate::error::{Error, Result};
 use crate::io::plot::{log_chart, side_by_side, Series};
 use crate::scene::{CaptureType, Model, Scene};
 use crate::transport::RenderOptions;
-use optim::checkpoint::{write_atomic, LossRecord};
+use optim::checkpoint::{write_atomic, Fnv64, Identity, LossRecord};
 use optim::fit::{FitError, Progress};
 use optim::{Mesh, MeshObjective, ObjectiveFactory, Schedule, SolverKind, Stage};
 use std::path::{Path, PathBuf};
@@ -187,6 +189,72 @@ impl ObjectiveFactory for Factory<'_> {
     }
 }
 
+/// The hash of a measurement as the checkpoints record it (FNV-1a 64 of its `f32` bits,
+/// length first).
+pub fn measurement_hash(measured: &[f32]) -> u64 {
+    Fnv64::new().f32s(measured).finish()
+}
+
+/// What a fit's checkpoints depend on besides the schedule and the initial mesh (which
+/// `optim::fit` adds): the scene (its canonical content after defaults: the `Debug`
+/// text of the loaded [`Scene`], whose floats print exactly, warnings left out), the
+/// measurement as fitted (its `f32` bits), the model with its samples per measurement,
+/// and every other option of `cfg` that changes the result (intensity model, albedo,
+/// sidedness, ignored bins, jitter, detector response, time offset, reflectance). Each
+/// is a separate FNV-1a 64 hash, so a refusal names what differs.
+pub fn identity(scene: &Scene, measured: &[f32], cfg: &FitConfig) -> Identity {
+    let canonical = Scene {
+        warnings: Vec::new(),
+        ..scene.clone()
+    };
+    let scene_text = format!("{canonical:?}");
+    let total: f64 = measured.iter().map(|&v| v as f64).sum();
+    let model = format!("{}, {} spp", cfg.model.name(), cfg.spp);
+    let options = format!(
+        "intensity {:?}, albedo {}, two-sided {}, ignore before {:?} m, jitter {} m, time offset {} m, reflectance {:?}",
+        cfg.intensity,
+        cfg.albedo,
+        cfg.two_sided,
+        cfg.ignore_before_opl,
+        cfg.jitter_opl,
+        cfg.time_offset_max_opl,
+        cfg.reflectance
+    );
+    let irf = format!("{:?}", cfg.irf);
+    let options_hash = Fnv64::new()
+        .field(options.as_bytes())
+        .field(irf.as_bytes())
+        .finish();
+    let options_summary = match &cfg.irf {
+        Some(k) => format!("{options}, detector response of {} taps", k.taps.len()),
+        None => options,
+    };
+    Identity::default()
+        .with(
+            "scene",
+            Fnv64::new().field(scene_text.as_bytes()).finish(),
+            format!(
+                "{} x {} scan points, {} bins of {} m, {} hidden objects",
+                scene.scan.nx,
+                scene.scan.ny,
+                scene.film.temporal_bins,
+                scene.film.bin_width_opl,
+                scene.objects.len()
+            ),
+        )
+        .with(
+            "measurement",
+            measurement_hash(measured),
+            format!("{} values summing to {total:.6e}", measured.len()),
+        )
+        .with(
+            "model",
+            Fnv64::new().field(model.as_bytes()).finish(),
+            model,
+        )
+        .with("options", options_hash, options_summary)
+}
+
 /// The initial mesh of `cfg.init` for this measurement, whose bins before `first_bin`
 /// are left out of the fit.
 pub fn initial_mesh(
@@ -244,9 +312,17 @@ pub fn fit(
             "the measurement has a non-finite value at flat index {i}"
         )));
     }
+    let identity = identity(scene, measured, cfg);
     let mut measured = measured.to_vec();
     let first = first_fitted_bin(&base, cfg.ignore_before_opl);
     zero_leading_bins(&mut measured, base.film.temporal_bins as usize, first);
+    if measured.iter().all(|&v| v == 0.0) {
+        return Err(Error::Invalid(format!(
+            "the measurement is zero in every bin the fit uses (from OPL {:.3} m): nothing to fit (a demonstration target is zero when the scene's hidden objects are beyond the film's last bin, OPL {:.3} m)",
+            base.film.start_opl + first as f32 * base.film.bin_width_opl,
+            base.film.start_opl + base.film.temporal_bins as f32 * base.film.bin_width_opl
+        )));
+    }
     let measured = &measured[..];
     let last_stage = cfg
         .schedule
@@ -267,6 +343,7 @@ pub fn fit(
         &remesh,
         &dir,
         cfg.resume,
+        &identity,
         progress,
     )
     .map_err(|e| match e {

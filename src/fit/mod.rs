@@ -19,6 +19,7 @@ pub mod init;
 pub mod intensity;
 pub mod metrics;
 pub mod objective;
+mod prepare;
 pub mod reconstruction;
 pub mod request;
 pub mod resolution;

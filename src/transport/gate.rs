@@ -119,20 +119,31 @@ fn check_reflectance(scene: &Scene, model: Model) -> Result<()> {
     else {
         return Ok(());
     };
-    let problem = if scene.capture != CaptureType::Confocal {
-        format!(
-            "needs confocal capture (the capture is {})",
-            scene.capture.name()
-        )
+    match retroreflective_problem(scene.capture, model) {
+        Some(problem) => Err(Error::Invalid(format!(
+            "objects[{i}] ({}): {problem}",
+            o.name
+        ))),
+        None => Ok(()),
+    }
+}
+
+/// Why a retroreflective surface cannot be rendered with `capture` and `model`, if it
+/// cannot (the gate's words, which the fit repeats before it starts).
+pub fn retroreflective_problem(capture: CaptureType, model: Model) -> Option<String> {
+    if capture != CaptureType::Confocal {
+        Some(format!(
+            "retroreflective reflectance needs confocal capture (the capture is {})",
+            capture.name()
+        ))
     } else if model != Model::Tri3 {
-        format!("is modelled by tri3 only (the model is {})", model.name())
+        Some(format!(
+            "retroreflective reflectance is modelled by tri3 only (the model is {})",
+            model.name()
+        ))
     } else {
-        return Ok(());
-    };
-    Err(Error::Invalid(format!(
-        "objects[{i}] ({}): retroreflective reflectance {problem}",
-        o.name
-    )))
+        None
+    }
 }
 
 /// Render options set from the command line or Python keyword arguments; `None` keeps

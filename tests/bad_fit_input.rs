@@ -176,6 +176,7 @@ fn stale_temporaries_go_and_the_saved_target_is_read_back() {
         std::fs::write(ck.join(s), b"half a file").unwrap();
     }
     let target = out.join("target.npy");
+    std::fs::write(out.join(".target.npy.tmp31337"), b"half a target").unwrap();
     let before = std::fs::metadata(&target).unwrap().modified().unwrap();
     std::thread::sleep(Duration::from_millis(20));
     let o = umbra_fit(
@@ -188,6 +189,7 @@ fn stale_temporaries_go_and_the_saved_target_is_read_back() {
     for s in stale {
         assert!(!ck.join(s).exists(), "{s} is still there");
     }
+    assert!(!out.join(".target.npy.tmp31337").exists());
     assert!(
         stderr(&o).contains("target read back from"),
         "{}",

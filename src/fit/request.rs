@@ -261,6 +261,8 @@ pub fn run(
         None
     };
     std::fs::create_dir_all(&req.output).map_err(|e| Error::io(&req.output, e))?;
+    // Temporaries of outputs a killed run was writing (target.npy, mesh.obj, ...).
+    optim::checkpoint::remove_stale_temporaries_of(&req.output, |_| true);
     let file = match &req.measurement {
         Measurement::File(p) => Some(p.as_path()),
         _ => None,

@@ -81,27 +81,23 @@ pub fn write_npy(path: &Path, t: &Transient) -> Result<()> {
 /// Writes an output file atomically: `write` fills a temporary file in `path`'s folder
 /// (made if missing), which is synced and renamed over `path`. An interrupted write never
 /// leaves a partial file, nor loses the previous one; on failure the temporary file is
-/// removed. Every transient writer (npy, EXR, y-tal HDF5) goes through it.
+/// removed. Every transient writer (npy, EXR, y-tal HDF5, gradients' npz) goes through it,
+/// and it through `optim::checkpoint::write_file_atomic` (one temporary-name scheme,
+/// `.<name>.tmp<pid>`, which a fit's start clears).
 pub fn write_via_temp(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    }
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy())
-        .unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
-    let written = write(&tmp)
-        .and_then(|()| {
-            std::fs::File::open(&tmp)
-                .and_then(|f| f.sync_all())
-                .map_err(|e| Error::io(&tmp, e))
+    // The writer's own error (it names what failed) is kept apart from the file
+    // system's around it.
+    let mut failed = None;
+    let done = optim::checkpoint::write_file_atomic(path, |tmp| {
+        write(tmp).map_err(|e| {
+            failed = Some(e);
+            std::io::Error::other("writer failed")
         })
-        .and_then(|()| std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e)));
-    if written.is_err() {
-        let _ = std::fs::remove_file(&tmp);
+    });
+    match (failed, done) {
+        (Some(e), _) => Err(e),
+        (None, r) => r.map_err(|e| Error::io(path, e)),
     }
-    written
 }
 
 /// Checks, before any work, that `path` can take a transient: a known extension, and a

@@ -172,9 +172,8 @@ impl Stage {
                 Err(format!("{name} = {v} must be {what}"))
             }
         };
-        if self.iters == 0 {
-            return Err("iters = 0 must be at least 1 (remove the stage to skip it)".into());
-        }
+        // `iters = 0` is allowed: such a stage evaluates its starting mesh without a step
+        // (a baseline: python/tests/test_fit_mitransient.py fits "the initial plane").
         match self.solver {
             SolverKind::Adam if !(self.lr.is_finite() && self.lr > 0.0) => {
                 return Err(format!(

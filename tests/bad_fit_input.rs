@@ -349,7 +349,7 @@ fn python_front_gets_the_same_refusals_in_its_spelling() {
         r.model = "path".into();
     });
     assert!(
-        e.contains("reflectance retroreflective: retroreflective reflectance is modelled by tri3 only (the model is path); use model tri3"),
+        e.contains("objects[0] (fit): retroreflective reflectance is modelled by tri3 only (the model is path) (the fitted surface is reflectance retroreflective): use model tri3"),
         "{e}"
     );
     let _ = std::fs::remove_dir_all(&d);
@@ -451,8 +451,8 @@ fn retroreflective_with_a_monte_carlo_model_says_why() {
         refused(
             &o,
             &[
-                "--reflectance retroreflective: retroreflective reflectance is modelled by tri3 only",
-                &format!("(the model is {model}); use --model tri3, or --reflectance lambertian"),
+                &format!("objects[0] (fit): retroreflective reflectance is modelled by tri3 only (the model is {model}) (the fitted surface is --reflectance retroreflective)"),
+                ": use --model tri3, or --reflectance lambertian",
             ],
         );
         assert!(!stderr(&o).contains("initial mesh"), "{}", stderr(&o));

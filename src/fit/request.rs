@@ -359,14 +359,17 @@ pub fn run(
         })?,
     };
     if reflectance == Reflectance::Retroreflective {
-        let refuse = |problem: String| {
-            let whose = if req.reflectance.is_none() {
-                " (the scene's first hidden object's)"
-            } else {
-                ""
-            };
+        let whose = if req.reflectance.is_none() {
+            " (the scene's first hidden object's)"
+        } else {
+            ""
+        };
+        // The gate's words for the fitted object (`objects[0] (fit)`), as the renderer
+        // would say them at the first evaluation, then where the reflectance comes from
+        // and what to change.
+        let refuse = |problem: String, fix: String| {
             Error::Invalid(format!(
-                "{} retroreflective{whose}: {problem}",
+                "objects[0] (fit): {problem} (the fitted surface is {} retroreflective{whose}){fix}",
                 n("reflectance")
             ))
         };
@@ -374,14 +377,14 @@ pub fn run(
         {
             let fix = if scene.capture == crate::scene::CaptureType::Confocal {
                 format!(
-                    "; use {} tri3, or {} lambertian",
+                    ": use {} tri3, or {} lambertian",
                     n("model"),
                     n("reflectance")
                 )
             } else {
-                format!("; use {} lambertian", n("reflectance"))
+                format!(": use {} lambertian", n("reflectance"))
             };
-            return Err(refuse(format!("{problem}{fix}")));
+            return Err(refuse(problem, fix));
         }
         if let Some((i, name)) = schedule.stages.iter().enumerate().find_map(|(i, s)| {
             s.model
@@ -389,9 +392,10 @@ pub fn run(
                 .filter(|m| Model::parse(m) != Some(Model::Tri3))
                 .map(|m| (i, m))
         }) {
-            return Err(refuse(format!(
-                "retroreflective reflectance is modelled by tri3 only, and the schedule's stage {i} has model = '{name}'"
-            )));
+            return Err(refuse(
+                format!("retroreflective reflectance is modelled by tri3 only, and the schedule's stage {i} has model = '{name}'"),
+                String::new(),
+            ));
         }
     }
     if let Some(note) = monte_carlo_warning(&n, model, req.spp, &schedule) {

@@ -205,6 +205,13 @@ fn run(case: &Case, dir: &Path) -> Result<(), String> {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
+    // Read stderr as it comes: a child blocked on a full pipe would look like a hang.
+    let mut pipe = child.stderr.take().unwrap();
+    let reader = std::thread::spawn(move || {
+        let mut err = String::new();
+        let _ = std::io::Read::read_to_string(&mut pipe, &mut err);
+        err
+    });
     let start = Instant::now();
     let status = loop {
         if let Some(s) = child.try_wait().unwrap() {
@@ -217,8 +224,14 @@ fn run(case: &Case, dir: &Path) -> Result<(), String> {
         }
         std::thread::sleep(Duration::from_millis(20));
     };
-    let mut err = String::new();
-    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+    let err = reader.join().unwrap();
+    // Errors that are Umbra's own failures, not refusals of the input.
+    if err.contains("please report")
+        || err.contains("ShapeError")
+        || err.contains("arithmetic overflow")
+    {
+        return Err(format!("internal error: {err}"));
+    }
     match status.code() {
         Some(0) => {
             let t = umbra::io::read_npy(&dir.join("out.npy")).map_err(|e| e.to_string())?;

@@ -453,7 +453,11 @@ pub fn fit(
         if let Ok(entries) = std::fs::read_dir(dir) {
             for e in entries.flatten() {
                 let name = e.file_name().to_string_lossy().into_owned();
-                if name.starts_with("solver-") && name.ends_with(".bin") {
+                let stage_number = name
+                    .strip_prefix("solver-")
+                    .and_then(|n| n.strip_suffix(".bin"))
+                    .filter(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()));
+                if stage_number.is_some() {
                     let _ = std::fs::remove_file(e.path());
                 }
             }

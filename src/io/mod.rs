@@ -85,6 +85,9 @@ pub fn write_npy(path: &Path, t: &Transient) -> Result<()> {
 /// and it through `optim::checkpoint::write_file_atomic` (one temporary-name scheme,
 /// `.<name>.tmp<pid>`, which a fit's start clears).
 pub fn write_via_temp(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    }
     // The writer's own error (it names what failed) is kept apart from the file
     // system's around it.
     let mut failed = None;

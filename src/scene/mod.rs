@@ -400,7 +400,9 @@ impl Scene {
     pub fn num_measurements(&self) -> usize {
         match self.capture {
             CaptureType::Single | CaptureType::Confocal => self.scan.len(),
-            CaptureType::Exhaustive => self.scan.len() * self.scan.len(),
+            // Saturating: a scene this large is refused by the memory budget
+            // (`transport::budget`), which counts in u64 itself.
+            CaptureType::Exhaustive => self.scan.len().saturating_mul(self.scan.len()),
         }
     }
 

@@ -7,11 +7,13 @@
 //!   exhaustive capture used to abort allocating it ("memory allocation failed");
 //! - Monte Carlo working memory: each measurement in flight folds its sample blocks'
 //!   `f64` histograms [`FOLD_BLOCKS`] at a time into one, so `8 T (FOLD_BLOCKS + 1)` per
-//!   thread, whatever the spp;
+//!   thread, whatever the spp (blocks run in parallel only when there are fewer
+//!   measurements than threads, so a thread never holds two measurements' sets);
 //! - `tri3`: one histogram of eight `f32` lanes per thread over the bins the hidden
 //!   geometry can reach (at most `T`), `32` bytes a bin, `8 T` more with a Gaussian kernel;
-//! - gradients: besides the forward pass, the target and the adjoint histogram (`4 M T`
-//!   each) and per chunk of measurements a `f64` accumulator of 12 values per triangle.
+//! - gradients: the forward render, the target and the adjoint histogram (`4 M T` each),
+//!   per chunk of measurements a `f64` accumulator of 12 values per triangle, and for
+//!   `tri3` its per-thread histograms (the Monte Carlo adjoint keeps none).
 //!
 //! The limit is the machine's available memory (`MemAvailable` of `/proc/meminfo`), or
 //! `UMBRA_MAX_MEMORY` (bytes, or with a `K`, `M`, `G` or `T` suffix) when set.
@@ -46,7 +48,11 @@ impl Footprint {
 /// The footprint of `pass` on `threads` threads (saturating: an absurd scene gives a huge
 /// number, never an overflow).
 pub fn footprint(scene: &Scene, opts: &RenderOptions, pass: Pass, threads: usize) -> Footprint {
-    let m = scene.num_measurements() as u64;
+    let points = u64::from(scene.scan.nx) * u64::from(scene.scan.ny);
+    let m = match scene.capture {
+        CaptureType::Exhaustive => points.saturating_mul(points),
+        _ => points,
+    };
     let t = u64::from(scene.film.temporal_bins);
     let n = threads.max(1) as u64;
     let output = m.saturating_mul(t).saturating_mul(4);
@@ -56,6 +62,8 @@ pub fn footprint(scene: &Scene, opts: &RenderOptions, pass: Pass, threads: usize
             let reach = t.min(super::tri3::WINDOW_MIN_BINS.max(reach_bins(scene)));
             reach.saturating_mul(32) + if gaussian { t.saturating_mul(8) } else { 0 }
         }
+        // The Monte Carlo adjoint reads the adjoint histogram and keeps no per-thread one.
+        _ if pass == Pass::Gradient => 0,
         _ => t.saturating_mul(8 * (FOLD_BLOCKS as u64 + 1)),
     };
     let mut working = per_thread.saturating_mul(n);
@@ -79,13 +87,19 @@ fn reach_bins(scene: &Scene) -> u64 {
             hi = hi.max(*p);
         }
     }
-    let diameter = (hi - lo).length().max(0.0);
-    let wall = (scene.wall.axis_u.length() + scene.wall.axis_v.length()) as f64;
-    // Over all wall points, the OPL of the geometry ranges over at most twice (wall +
-    // diameter) beyond its minimum.
-    let span = 2.0 * (wall + diameter as f64) / scene.film.bin_width_opl as f64;
-    if span.is_finite() {
-        span as u64 + 2
+    let d = f64::from((hi - lo).length().max(0.0));
+    let wall = f64::from(scene.wall.axis_u.length() + scene.wall.axis_v.length());
+    let width = f64::from(scene.film.bin_width_opl);
+    // Over all wall points the geometry's OPL spans at most twice (wall + diameter);
+    // `Tri3Mesh::reach` adds the curvature shift (under 1.5 diameters), the f32 rounding
+    // of the pulse times and the splat's padding.
+    let reach = 2.0 * (wall + d);
+    let far = f64::from(lo.abs().max(hi.abs()).length()) + wall;
+    let rounding =
+        8.0 * f64::from(f32::EPSILON) * (2.0 * far + f64::from(scene.film.start_opl).abs());
+    let span = (reach + 1.5 * d + rounding) / width + 4.0 + crate::film::SPLAT_PAD as f64;
+    if span.is_finite() && span < u64::MAX as f64 {
+        span as u64
     } else {
         u64::MAX
     }
@@ -147,8 +161,20 @@ pub fn check(scene: &Scene, opts: &RenderOptions, pass: Pass) -> Result<()> {
         }
         _ => format!("{sy} x {sx} scan points (scan.resolution)"),
     };
+    let arrays_are = match pass {
+        Pass::Render => "the output",
+        Pass::Gradient => "the render, target and adjoint (3 arrays)",
+    };
+    let advice = if f.working > f.arrays {
+        match pass {
+            Pass::Gradient => "reduce --threads, film.temporal_bins or the hidden triangles",
+            Pass::Render => "reduce --threads or film.temporal_bins",
+        }
+    } else {
+        "reduce scan.resolution or film.temporal_bins"
+    };
     Err(Error::Invalid(format!(
-        "{} would need {} of memory, more than the {} {}: {} for the {} ({measurements} x {bins} time bins (film.temporal_bins){}) and {} of working memory on {threads} threads; reduce scan.resolution or film.temporal_bins{}",
+        "{} would need {} of memory, more than the {} {}: {} for {arrays_are} ({measurements} x {bins} time bins (film.temporal_bins) x 4 bytes{}) and {} of working memory on {threads} threads; {advice}{}",
         match pass {
             Pass::Render => "the render",
             Pass::Gradient => "the gradient",
@@ -161,8 +187,7 @@ pub fn check(scene: &Scene, opts: &RenderOptions, pass: Pass) -> Result<()> {
             "available on this machine"
         },
         bytes(f.arrays),
-        if pass == Pass::Gradient { "render, target and adjoint" } else { "output" },
-        " x 4 bytes",
+        if pass == Pass::Gradient { " each" } else { "" },
         bytes(f.working),
         if scene.capture == CaptureType::Exhaustive {
             " (an exhaustive capture measures every pair of scan points)"
@@ -172,8 +197,12 @@ pub fn check(scene: &Scene, opts: &RenderOptions, pass: Pass) -> Result<()> {
     )))
 }
 
-/// `n` bytes for people: "34359738368 bytes (32.0 GiB)".
+/// `n` bytes for people: "34359738368 bytes (32.0 GiB)"; a saturated count (the size
+/// does not fit in 64 bits) is "more than 16 EiB".
 fn bytes(n: u64) -> String {
+    if n == u64::MAX {
+        return "more than 18446744073709551615 bytes (16 EiB)".into();
+    }
     let units = ["KiB", "MiB", "GiB", "TiB", "PiB", "EiB"];
     let mut v = n as f64;
     let mut unit = "bytes";
@@ -203,5 +232,6 @@ mod tests {
         assert_eq!(parse_bytes("lots"), None);
         assert_eq!(bytes(34359738368), "34359738368 bytes (32.0 GiB)");
         assert_eq!(bytes(12), "12 bytes");
+        assert!(bytes(u64::MAX).starts_with("more than"));
     }
 }

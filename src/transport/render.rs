@@ -148,6 +148,7 @@ impl<'a> Renderer<'a> {
         let bins = self.film.bins;
         let mut data = vec![0.0f32; self.scene.num_measurements() * bins];
         let cancelled = AtomicBool::new(false);
+        let nested = self.scene.num_measurements() < rayon::current_num_threads();
         let stop = || {
             let c = cancelled.load(Ordering::Relaxed)
                 || progress.is_some_and(|p| p.cancel.load(Ordering::Relaxed));
@@ -179,7 +180,7 @@ impl<'a> Renderer<'a> {
                         }
                         return;
                     }
-                    let Some(hist) = self.monte_carlo(&ctx, m, progress, &stop) else {
+                    let Some(hist) = self.monte_carlo(&ctx, m, progress, &stop, nested) else {
                         return;
                     };
                     for (o, a) in out.iter_mut().zip(hist) {
@@ -210,6 +211,7 @@ impl<'a> Renderer<'a> {
         m: usize,
         progress: Option<&Progress>,
         stop: &(dyn Fn() -> bool + Sync),
+        nested: bool,
     ) -> Option<Vec<f64>> {
         let (bins, spp) = (self.film.bins, self.opts.spp);
         let blocks = spp.div_ceil(BLOCK_SPP) as usize;
@@ -218,34 +220,40 @@ impl<'a> Renderer<'a> {
         // flat in spp (it grew by a histogram per block until the measurement ended), and
         // the sum does not depend on the thread count.
         for group in (0..blocks).step_by(FOLD_BLOCKS) {
-            let hists: Vec<Option<Vec<f64>>> = (group..(group + FOLD_BLOCKS).min(blocks))
-                .into_par_iter()
-                .map(|b| {
-                    if stop() {
-                        return None;
-                    }
-                    let first = b as u32 * BLOCK_SPP;
-                    let last = (first + BLOCK_SPP).min(spp);
-                    let mut hist = vec![0.0f64; bins];
-                    let mut sink = HistogramSink {
-                        film: &self.film,
-                        hist: &mut hist,
-                    };
-                    run_samples(
-                        self.model,
-                        ctx,
-                        self.opts.seed,
-                        m as u64,
-                        first..last,
-                        &mut sink,
-                    );
-                    if let Some(p) = progress {
-                        p.work_done
-                            .fetch_add((last - first) as u64, Ordering::Relaxed);
-                    }
-                    Some(hist)
-                })
-                .collect();
+            let block = |b: usize| {
+                if stop() {
+                    return None;
+                }
+                let first = b as u32 * BLOCK_SPP;
+                let last = (first + BLOCK_SPP).min(spp);
+                let mut hist = vec![0.0f64; bins];
+                let mut sink = HistogramSink {
+                    film: &self.film,
+                    hist: &mut hist,
+                };
+                run_samples(
+                    self.model,
+                    ctx,
+                    self.opts.seed,
+                    m as u64,
+                    first..last,
+                    &mut sink,
+                );
+                if let Some(p) = progress {
+                    p.work_done
+                        .fetch_add((last - first) as u64, Ordering::Relaxed);
+                }
+                Some(hist)
+            };
+            let range = group..(group + FOLD_BLOCKS).min(blocks);
+            // Blocks in parallel only when measurements alone cannot keep the threads
+            // busy: a thread waiting on nested work would steal another measurement and
+            // hold a second set of histograms (`budget` counts one set per thread).
+            let hists: Vec<Option<Vec<f64>>> = if nested {
+                range.into_par_iter().map(block).collect()
+            } else {
+                range.map(block).collect()
+            };
             for h in hists {
                 for (a, v) in acc.iter_mut().zip(h?) {
                     *a += v;

@@ -163,11 +163,15 @@ impl Tri3Mesh {
         let (x_l, x_s) = (frame.x_l, frame.x_s);
         // In f64: at 1e8 bins an f32 bin index is 8 bins coarse.
         let (w, offset) = (f64::from(frame.inv_width), f64::from(frame.offset));
-        let margin = 1.5 * f64::from(self.longest_edge) * w + 2.0;
+        // The kernel computes each pulse's time in f32 (`(r_l + r_s + offset) w`): its
+        // rounding, a few ulps of the distances, can put a pulse that many bins away
+        // from the exact bound (60 bins for geometry 1 km away with 1 µm bins).
+        let rounding = 8.0 * f64::from(f32::EPSILON) * (far(x_l) + far(x_s) + offset.abs()) * w;
+        let margin = 1.5 * f64::from(self.longest_edge) * w + rounding + 2.0;
         let t_lo = (near(x_l) + near(x_s) + offset) * w - margin;
-        let t_hi = (far(x_l) + far(x_s) + offset) * w + 2.0;
+        let t_hi = (far(x_l) + far(x_s) + offset) * w + rounding + 2.0;
         let nbins = bins as f64;
-        // NaN (an empty mesh) picks the whole film.
+        // Non-finite bounds (an empty mesh has an inverted box) give an empty window.
         let first = if t_lo >= 0.0 {
             t_lo.min(nbins) as usize
         } else {
@@ -339,8 +343,8 @@ pub fn render_measurement(
     let (first, bins) = if !gaussian && film.bins as u64 > WINDOW_MIN_BINS {
         let (first, len) = mesh.reach(&frame, film.bins);
         frame.offset = (f64::from(frame.offset) - first as f64 * film.width) as f32;
-        frame.lo -= first as f32;
-        frame.hi -= first as f32;
+        frame.lo = (f64::from(frame.lo) - first as f64) as f32;
+        frame.hi = (f64::from(frame.hi) - first as f64) as f32;
         (first, len)
     } else {
         (0, film.bins)

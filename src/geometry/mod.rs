@@ -6,5 +6,6 @@ pub mod mesh;
 pub mod overlap;
 pub mod sampling;
 pub mod shapes;
+pub mod silhouette;
 
 pub use accel::{HiddenTri, Hit, SceneGeometry, SurfaceKind};

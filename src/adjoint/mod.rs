@@ -31,6 +31,7 @@
 
 pub mod check;
 pub mod dual;
+pub mod edge;
 pub mod loss;
 
 pub use loss::Loss;

@@ -47,20 +47,10 @@ fn truth(scene: &Scene) -> optim::Mesh {
 
 fn stage(iters: u64, solver: SolverKind, lr: f64, time: u32, fit_albedo: bool) -> Stage {
     Stage {
-        iters,
-        solver,
-        lr,
         large_steps: 10.0,
-        laplacian: 0.0,
-        fit_positions: true,
         fit_albedo,
-        albedo_step: 10.0,
-        remesh: None,
-        remesh_factor: None,
         time_downsample: time,
-        scan_downsample: 1,
-        model: None,
-        spp: None,
+        ..Stage::new(iters, solver, lr)
     }
 }
 

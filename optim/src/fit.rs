@@ -106,6 +106,29 @@ pub struct Stage {
     pub spp: Option<u32>,
 }
 
+impl Stage {
+    /// A stage of `iters` iterations of `solver` at step `lr`, every other field at the
+    /// default a schedule file gives it (the serde defaults above).
+    pub fn new(iters: u64, solver: SolverKind, lr: f64) -> Stage {
+        Stage {
+            iters,
+            solver,
+            lr,
+            large_steps: 0.0,
+            laplacian: 0.0,
+            fit_positions: yes(),
+            fit_albedo: false,
+            albedo_step: default_albedo_step(),
+            remesh: None,
+            remesh_factor: None,
+            time_downsample: one(),
+            scan_downsample: one(),
+            model: None,
+            spp: None,
+        }
+    }
+}
+
 fn default_lr() -> f64 {
     0.01
 }

@@ -3,6 +3,8 @@
 //! or a NaN are refused naming the file; stale temporaries go; a schedule that cannot
 //! mean what it says is refused before anything runs.
 
+mod common;
+
 use optim::checkpoint::{encode, Identity, Kind, LossRecord};
 use optim::fit::Progress;
 use optim::{
@@ -13,23 +15,9 @@ use std::cell::RefCell;
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
 
+/// A flat 3 x 3 grid (18 faces).
 fn grid() -> Mesh {
-    let n = 3;
-    let mut v = Vec::new();
-    for j in 0..=n {
-        for i in 0..=n {
-            v.push([i as f64 / n as f64, j as f64 / n as f64, 0.0]);
-        }
-    }
-    let id = |i: usize, j: usize| (j * (n + 1) + i) as u32;
-    let mut f = Vec::new();
-    for j in 0..n {
-        for i in 0..n {
-            f.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
-            f.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
-        }
-    }
-    Mesh::new(v, f)
+    common::sheet(3)
 }
 
 /// Every vertex pulled towards z = 0.3.
@@ -66,20 +54,8 @@ impl ObjectiveFactory for Factory {
 
 fn schedule(lr: f64) -> Schedule {
     let stage = Stage {
-        iters: 10,
-        solver: SolverKind::Adam,
-        lr,
         large_steps: 1.0,
-        laplacian: 0.0,
-        fit_positions: true,
-        fit_albedo: false,
-        albedo_step: 10.0,
-        remesh: None,
-        remesh_factor: None,
-        time_downsample: 1,
-        scan_downsample: 1,
-        model: None,
-        spp: None,
+        ..Stage::new(10, SolverKind::Adam, lr)
     };
     Schedule {
         stages: vec![stage],

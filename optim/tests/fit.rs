@@ -89,20 +89,8 @@ impl ObjectiveFactory for Factory {
 
 fn stage(iters: u64, solver: SolverKind, lr: f64) -> Stage {
     Stage {
-        iters,
-        solver,
-        lr,
         large_steps: 4.0,
-        laplacian: 0.0,
-        fit_positions: true,
-        fit_albedo: false,
-        albedo_step: 10.0,
-        remesh: None,
-        remesh_factor: None,
-        time_downsample: 1,
-        scan_downsample: 1,
-        model: None,
-        spp: None,
+        ..Stage::new(iters, solver, lr)
     }
 }
 

@@ -106,20 +106,12 @@ pub struct FitReport {
 /// docs/FITTING.md ("Choosing the schedule").
 pub fn default_schedule() -> Schedule {
     let stage = |iters, solver, lr, time, scan, fit_albedo, remesh_factor| Stage {
-        iters,
-        solver,
-        lr,
         large_steps: 2.0,
-        laplacian: 0.0,
-        fit_positions: true,
         fit_albedo,
-        albedo_step: 10.0,
-        remesh: None,
         remesh_factor,
         time_downsample: time,
         scan_downsample: scan,
-        model: None,
-        spp: None,
+        ..Stage::new(iters, solver, lr)
     };
     Schedule {
         stages: vec![

@@ -11,6 +11,8 @@
 //! cases took 132 s). `UMBRA_FUZZ_BIN` fuzzes another build of `umbra` (an older one:
 //! 1625a71 fails within a few cases, on a 100000 x 100000 scan).
 
+mod common;
+use common::SceneSpec;
 use proptest::prelude::*;
 use std::path::Path;
 use std::process::{Command, Stdio};
@@ -150,44 +152,43 @@ fn case() -> impl Strategy<Value = Case> {
 }
 
 impl Case {
-    fn toml(&self) -> String {
-        let mut t = format!(
-            "capture_type = \"{}\"\n[wall]\nsize = [2.0, 2.0]\n[laser]\norigin = [{:?}, {:?}, {:?}]\n\
-             spot_radius = {:?}\n[scan]\nresolution = [{}, {}]\nsize = [{:?}, {:?}]\n[film]\n\
-             temporal_bins = {}\nbin_width_opl = {:?}\nstart_opl = {:?}\n",
-            self.capture,
-            self.laser[0],
-            self.laser[1],
-            self.laser[2],
-            self.spot_radius,
-            self.scan[0],
-            self.scan[1],
-            self.scan_size,
-            self.scan_size,
-            self.bins,
-            self.bin_width,
-            self.start_opl
-        );
-        if let Some(s) = self.kernel {
-            t += &format!("kernel = \"gaussian\"\nsigma_opl = {s:?}\n");
+    /// The case as the shared test-scene builder's scene (the detector, left out, is at
+    /// the laser, as an Umbra TOML without `[detector]` puts it); the object is moved
+    /// by `z` in its OBJ text.
+    fn spec(&self) -> SceneSpec {
+        let shifted: String = self
+            .obj
+            .lines()
+            .map(|l| match l.strip_prefix("v ") {
+                Some(xyz) => {
+                    let c: Vec<f32> = xyz.split(' ').map(|v| v.parse().unwrap()).collect();
+                    format!("v {:e} {:e} {:e}\n", c[0], c[1], c[2] + self.z)
+                }
+                None => format!("{l}\n"),
+            })
+            .collect();
+        SceneSpec {
+            capture: self.capture,
+            laser_origin: self.laser,
+            detector_origin: self.laser,
+            spot_radius: self.spot_radius,
+            scan: self.scan,
+            scan_size: self.scan_size,
+            bins: self.bins,
+            bin_width: self.bin_width,
+            start_opl: self.start_opl,
+            sigma_opl: self.kernel,
+            objects: vec![(shifted, self.albedo, "lambertian")],
+            model: self.model,
+            spp: self.spp,
+            render_extra: self.extra.clone(),
         }
-        t += &format!(
-            "[[objects]]\nfile = \"h.obj\"\nalbedo = {:?}\ntransform = {{ translate = [0.0, 0.0, {:?}] }}\n\
-             [render]\nmodel = \"{}\"\nspp = {}\n",
-            self.albedo, self.z, self.model, self.spp
-        );
-        for l in &self.extra {
-            t += l;
-            t.push('\n');
-        }
-        t
     }
 }
 
 /// Runs one case; `Err` describes a crash, a panic, a timeout or a bad output.
 fn run(case: &Case, dir: &Path) -> Result<(), String> {
-    std::fs::write(dir.join("h.obj"), &case.obj).unwrap();
-    std::fs::write(dir.join("scene.toml"), case.toml()).unwrap();
+    case.spec().write(dir);
     let _ = std::fs::remove_file(dir.join("out.npy"));
     let mut cmd = format!(
         "ulimit -v {ULIMIT_KIB}; exec '{}' render scene.toml -o out.npy -q --no-preview",
@@ -265,6 +266,7 @@ proptest! {
         let dir = std::env::temp_dir().join(format!("umbra-fuzz-render-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let r = run(&c, &dir);
-        prop_assert!(r.is_ok(), "{}\n--- scene.toml\n{}--- h.obj\n{}", r.unwrap_err(), c.toml(), c.obj);
+        let spec = c.spec();
+        prop_assert!(r.is_ok(), "{}\n--- scene.toml\n{}--- obj0.obj\n{}", r.unwrap_err(), spec.toml(), spec.objects[0].0);
     }
 }

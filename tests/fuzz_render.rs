@@ -182,6 +182,7 @@ impl Case {
             model: self.model,
             spp: self.spp,
             render_extra: self.extra.clone(),
+            two_sided: false,
         }
     }
 }

@@ -29,6 +29,7 @@
 //! changes (silhouettes, occlusion between hidden objects): the interior derivative is
 //! biased there.
 
+pub mod boundary;
 pub mod check;
 pub mod dual;
 pub mod edge;
@@ -48,6 +49,7 @@ use crate::transport::{
     run_samples_with, Contribution, HiddenGrad, MeasurementCtx, Progress, RenderOptions, Sink,
     BLOCK_SPP,
 };
+use boundary::Boundary;
 use rayon::prelude::*;
 use std::sync::atomic::Ordering;
 
@@ -66,6 +68,10 @@ pub struct Gradient {
     /// further triangles' share of the gradient.
     pub contributions: u64,
     pub truncated: u64,
+    /// Whether the visibility boundary terms were added ([`boundary`]), and how many
+    /// edge quadrature nodes (summed over measurements) carried them.
+    pub boundary: bool,
+    pub boundary_nodes: u64,
 }
 
 /// The adjoint sink: accumulates `A dw + w B dτ` into per-triangle local gradients.
@@ -131,10 +137,13 @@ pub fn gradient(
     let tris = geom.hidden.len();
     let chunks = MAX_CHUNKS.min(measurements).max(1);
     let spp = opts.spp.max(1);
-    let partial: Vec<(Vec<[f64; TRI_PARAMS]>, u64, u64)> = (0..chunks)
+    let edges = boundary_terms_apply(scene, opts).then(|| Boundary::new(scene, &film));
+    let partial: Vec<ChunkGrad> = (0..chunks)
         .into_par_iter()
         .map(|c| {
             let mut tri_grad = vec![[0.0; TRI_PARAMS]; tris];
+            let mut vertex_grad = edges.as_ref().map(|_| zero_vertex_grad(scene));
+            let mut views = boundary::ViewCache::default();
             let mut scratch = PathScratch::default();
             for m in (c * measurements / chunks)..((c + 1) * measurements / chunks) {
                 if progress.is_some_and(|p| p.cancel.load(Ordering::Relaxed)) {
@@ -142,6 +151,9 @@ pub fn gradient(
                 }
                 let ctx = MeasurementCtx::new(scene, geom, &film, m);
                 let adj = &adjoint[m * bins..(m + 1) * bins];
+                if let (Some(b), Some(g), true) = (&edges, &mut vertex_grad, ctx.legs_visible) {
+                    b.measurement(scene, &ctx, &film, adj, &mut views, g);
+                }
                 if !ctx.legs_visible {
                     if let Some(p) = progress {
                         let work = tri3.as_ref().map_or(spp as u64, |t| t.len() as u64);
@@ -185,24 +197,74 @@ pub fn gradient(
                     p.work_done.fetch_add(spp as u64, Ordering::Relaxed);
                 }
             }
-            (tri_grad, scratch.emitted, scratch.truncated)
+            ChunkGrad {
+                tri_grad,
+                vertex_grad,
+                emitted: scratch.emitted,
+                truncated: scratch.truncated,
+                boundary_nodes: views.nodes_used,
+            }
         })
         .collect();
     if progress.is_some_and(|p| p.cancel.load(Ordering::Relaxed)) {
         return Err(Error::Cancelled);
     }
     let mut tri_grad = vec![[0.0f64; TRI_PARAMS]; tris];
-    let (mut contributions, mut truncated) = (0, 0);
-    for (part, emitted, cut) in partial {
-        for (acc, g) in tri_grad.iter_mut().zip(part) {
+    let mut vertex_grad = zero_vertex_grad(scene);
+    let (mut contributions, mut truncated, mut nodes) = (0, 0, 0);
+    for part in partial {
+        for (acc, g) in tri_grad.iter_mut().zip(part.tri_grad) {
             acc.iter_mut().zip(g).for_each(|(a, g)| *a += g);
         }
-        contributions += emitted;
-        truncated += cut;
+        for (acc, g) in vertex_grad
+            .iter_mut()
+            .zip(part.vertex_grad.iter().flatten())
+        {
+            for (a, g) in acc.iter_mut().zip(g) {
+                (0..3).for_each(|k| a[k] += g[k]);
+            }
+        }
+        contributions += part.emitted;
+        truncated += part.truncated;
+        nodes += part.boundary_nodes;
     }
     let mut g = scatter(scene, geom, &tri_grad);
+    for (acc, b) in g.vertices.iter_mut().zip(&vertex_grad) {
+        for (a, b) in acc.iter_mut().zip(b) {
+            (0..3).for_each(|k| a[k] += b[k]);
+        }
+    }
     (g.contributions, g.truncated) = (contributions, truncated);
+    g.boundary = edges.is_some();
+    g.boundary_nodes = nodes;
     Ok(g)
+}
+
+/// One work chunk's share of the gradient.
+struct ChunkGrad {
+    tri_grad: Vec<[f64; TRI_PARAMS]>,
+    /// Boundary terms, per object vertex (`None` when they are off).
+    vertex_grad: Option<boundary::VertexGrad>,
+    emitted: u64,
+    truncated: u64,
+    boundary_nodes: u64,
+}
+
+fn zero_vertex_grad(scene: &Scene) -> boundary::VertexGrad {
+    scene
+        .objects
+        .iter()
+        .map(|o| vec![[0.0; 3]; o.mesh.positions.len()])
+        .collect()
+}
+
+/// Whether this gradient gets boundary terms: asked for (`render.boundary_terms`), a
+/// model with visibility (`tri3` with `visibility = none` has none), and three-bounce
+/// paths kept by the bounce filter.
+pub fn boundary_terms_apply(scene: &Scene, opts: &RenderOptions) -> bool {
+    scene.render.boundary_terms
+        && Boundary::applies(scene)
+        && !(opts.model == Model::Tri3 && opts.visibility == crate::scene::Visibility::None)
 }
 
 /// Chains per-triangle local gradients (corners, corner albedos) to the objects'
@@ -211,6 +273,8 @@ fn scatter(scene: &Scene, geom: &SceneGeometry, tri_grad: &[[f64; TRI_PARAMS]]) 
     let mut g = Gradient {
         contributions: 0,
         truncated: 0,
+        boundary: false,
+        boundary_nodes: 0,
         vertices: scene
             .objects
             .iter()

@@ -8,12 +8,11 @@
 //! across which what `o` sees can change:
 //!
 //! - a **boundary edge** (one face): always;
-//! - an edge of two faces, one facing `o` and one facing away
-//!   (`(n₀·(p − o)) (n₁·(p − o)) < 0`): a contour;
-//! - not an edge of two coplanar faces, nor one whose faces both face `o` or both face
-//!   away (a crease with no contour);
-//! - a **non-manifold** edge (three faces or more): when its faces do not all face the
-//!   same way from `o`.
+//! - an edge whose faces all lie on one side of the plane through `o` and the edge (for
+//!   two faces: one faces `o` and one faces away, whatever their winding): a contour;
+//! - not an edge of two coplanar faces, nor one with faces on both sides of that plane
+//!   (a crease with no contour: both faces face `o` or both face away);
+//! - a **non-manifold** edge (three faces or more): by the same one-side rule.
 //!
 //! Occlusion is geometric: a one-sided face hides what is behind it from both sides, so
 //! the classification ignores sidedness.
@@ -112,17 +111,36 @@ impl EdgeMesh {
         if edge.faces.len() == 1 {
             return true;
         }
-        let p = self.positions[edge.v[0] as usize];
-        let facing = |f: u32| self.normals[f as usize].dot(p - o);
         if let [f0, f1] = edge.faces[..] {
             let (n0, n1) = (self.normals[f0 as usize], self.normals[f1 as usize]);
             if n0.dot(n1).abs() > 1.0 - COPLANAR {
                 return false;
             }
-            return facing(f0) * facing(f1) < 0.0;
         }
-        let front = edge.faces.iter().filter(|&&f| facing(f) < 0.0).count();
-        front != 0 && front != edge.faces.len()
+        // Which side of the plane through `o` and the edge each face lies on (the sign of
+        // its third vertex): all on one side leaves the other side open, a contour seen
+        // from `o`; faces on both sides close it. Independent of the faces' winding.
+        let sides: Vec<f32> = edge
+            .faces
+            .iter()
+            .map(|&f| self.side_of_view_plane(e, f, o))
+            .collect();
+        sides.iter().all(|&s| s > 0.0) || sides.iter().all(|&s| s < 0.0)
+    }
+
+    /// The third vertex of face `f` (the corner not on edge `e`).
+    pub fn third_vertex(&self, e: usize, f: u32) -> Vec3 {
+        let v = self.edges[e].v;
+        let c = self.corners[f as usize];
+        let k = c.iter().position(|i| !v.contains(i)).unwrap_or(0);
+        self.positions[c[k] as usize]
+    }
+
+    /// Signed distance-like side of face `f`'s third vertex with respect to the plane
+    /// through `o` and edge `e`.
+    fn side_of_view_plane(&self, e: usize, f: u32, o: Vec3) -> f32 {
+        let [a, b] = self.edges[e].v.map(|i| self.positions[i as usize]);
+        (b - a).cross(a - o).dot(self.third_vertex(e, f) - a)
     }
 }
 

@@ -439,6 +439,7 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
             subdivision: super::DEFAULT_SUBDIVISION,
             // mitransient traces the laser beam and the detector's view.
             visible_legs: true,
+            boundary_terms: true,
             max_error: super::DEFAULT_MAX_ERROR,
         },
     })

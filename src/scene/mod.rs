@@ -308,6 +308,10 @@ pub struct RenderSettings {
     /// mitransient. `false` skips the two rays per measurement when the user knows the
     /// legs are clear.
     pub visible_legs: bool,
+    /// Gradients: add the visibility boundary terms (shadow curves moving across hidden
+    /// surfaces, `adjoint::boundary`) to the interior derivative. On by default; off
+    /// reproduces the interior-only gradient (faster where nothing occludes).
+    pub boundary_terms: bool,
 }
 
 /// Default `subdivision` of the `tri3` model (see `BENCHMARKS.md` for its error).

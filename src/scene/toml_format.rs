@@ -175,6 +175,8 @@ struct RenderT {
     max_error: f32,
     #[serde(default = "yes")]
     visible_legs: bool,
+    #[serde(default = "yes")]
+    boundary_terms: bool,
 }
 
 fn default_visibility() -> String {
@@ -458,6 +460,7 @@ pub fn parse(
         subdivision: r.subdivision,
         max_error: r.max_error,
         visible_legs: r.visible_legs,
+        boundary_terms: r.boundary_terms,
     };
 
     let scene = Scene {

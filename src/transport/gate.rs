@@ -165,6 +165,8 @@ pub struct Overrides {
     pub max_error: Option<f32>,
     /// Test the laser -> `x_l` and `x_s` -> detector lines for occlusion.
     pub visible_legs: Option<bool>,
+    /// Gradients: add the visibility boundary terms.
+    pub boundary_terms: Option<bool>,
 }
 
 impl Overrides {
@@ -222,6 +224,7 @@ impl Overrides {
         r.subdivision = self.subdivision.unwrap_or(r.subdivision);
         r.max_error = self.max_error.unwrap_or(r.max_error);
         r.visible_legs = self.visible_legs.unwrap_or(r.visible_legs);
+        r.boundary_terms = self.boundary_terms.unwrap_or(r.boundary_terms);
         let opts = RenderOptions::from_settings(r);
         check_values(r.max_bounces, &opts)?;
         Ok(opts)

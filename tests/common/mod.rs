@@ -2,6 +2,8 @@
 //! renders, and the total energy's mean and standard error over independent seeds.
 #![allow(dead_code)]
 
+pub mod exact_shadows;
+
 use std::path::Path;
 use umbra::geometry::mesh::TriMesh;
 use umbra::geometry::SceneGeometry;
@@ -171,6 +173,8 @@ pub struct SceneSpec {
     pub sigma_opl: Option<f32>,
     /// (OBJ text, albedo, reflectance)
     pub objects: Vec<(String, f32, &'static str)>,
+    /// Every object two-sided.
+    pub two_sided: bool,
     pub model: &'static str,
     pub spp: u32,
     /// Extra `[render]` lines, e.g. `"visible_legs = false"`.
@@ -191,6 +195,7 @@ impl Default for SceneSpec {
             start_opl: 0.8,
             sigma_opl: Some(0.012),
             objects: vec![(square_obj([0.05, 0.02, 0.6], 0.3), 0.8, "lambertian")],
+            two_sided: false,
             model: "mc3",
             spp: 32,
             render_extra: Vec::new(),
@@ -224,6 +229,9 @@ impl SceneSpec {
             t += &format!(
                 "[[objects]]\nfile = \"obj{i}.obj\"\nalbedo = {albedo:?}\nreflectance = \"{refl}\"\n"
             );
+            if self.two_sided {
+                t += "two_sided = true\n";
+            }
         }
         t += &format!("[render]\nmodel = \"{}\"\nspp = {}\n", self.model, self.spp);
         for l in &self.render_extra {

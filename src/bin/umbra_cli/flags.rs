@@ -47,6 +47,11 @@ pub struct RenderFlags {
     /// measurement when you know they are clear.
     #[arg(long)]
     pub visible_legs: Option<bool>,
+    /// Gradients (grad, gradcheck, fit): add the visibility boundary terms, the part of
+    /// a vertex gradient carried by shadows moving across hidden surfaces (default
+    /// true); false gives the interior derivative alone (faster where nothing occludes).
+    #[arg(long)]
+    pub boundary_terms: Option<bool>,
 }
 
 impl RenderFlags {
@@ -63,6 +68,7 @@ impl RenderFlags {
             subdivision: self.subdivision,
             max_error: self.max_error,
             visible_legs: self.visible_legs,
+            boundary_terms: self.boundary_terms,
         }
     }
 }

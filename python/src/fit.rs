@@ -41,7 +41,7 @@ fn mesh_dict<'py>(py: Python<'py>, m: &optim::Mesh) -> PyResult<Bound<'py, PyDic
     scene, measured, output, *, init = "plane", schedule = None, iters = None, resume = false,
     model = "tri3", spp = 16, known_scale = false, background = None, jitter = None, irf = None,
     time_offset = None, reflectance = None, ignore_before = None, truth = false, bin = None,
-    target_spp = 4096, threads = None, progress = None
+    target_spp = 4096, threads = None, progress = None, boundary_terms = None
 ))]
 #[allow(clippy::too_many_arguments)]
 pub fn fit<'py>(
@@ -67,6 +67,7 @@ pub fn fit<'py>(
     target_spp: u32,
     threads: Option<usize>,
     progress: Option<Py<PyAny>>,
+    boundary_terms: Option<bool>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let shape = scene.inner.output_shape();
     let measurement = match measured {
@@ -113,6 +114,7 @@ pub fn fit<'py>(
         ignore_before,
         truth,
         bin,
+        boundary_terms,
         ..FitRequest::new(measurement, output)
     };
     // An exception of the progress callback stops the fit and is raised in its place.

@@ -248,6 +248,7 @@ fn grad<'py>(
         None => out.set_item("render", py.None())?,
     }
     out.set_item("truncated_paths", g.truncated)?;
+    out.set_item("boundary_terms", g.boundary)?;
     Ok(out)
 }
 

@@ -31,13 +31,15 @@ pub const NAMES: &[&str] = &[
     "hidden_geometry_sampling",
     "bsdf_sampling",
     "visible_legs",
+    "boundary_terms",
 ];
 
 /// A scene with the options applied, the options as the renderer takes them, and the
 /// worker thread count (None: all cores).
 pub struct Resolved<'a> {
     /// The caller's scene, or a copy when an option lives in the scene itself
-    /// (`max_depth`, the sampling techniques, `visible_legs`); the copy shares nothing
+    /// (`max_depth`, the sampling techniques, `visible_legs`, `boundary_terms`); the copy
+    /// shares nothing
     /// with Python.
     pub scene: Cow<'a, Scene>,
     pub opts: RenderOptions,
@@ -82,6 +84,7 @@ pub fn resolve<'a>(
             "subdivision" => o.subdivision = Some(value(k, &v)?),
             "max_error" => o.max_error = Some(value(k, &v)?),
             "visible_legs" => o.visible_legs = Some(value(k, &v)?),
+            "boundary_terms" => o.boundary_terms = Some(value(k, &v)?),
             "threads" => threads = Some(value::<usize>(k, &v)?),
             other => {
                 return Err(UmbraError::new_err(format!(
@@ -95,7 +98,8 @@ pub fn resolve<'a>(
     let opts = o.apply_to(&mut r).map_err(crate::to_py)?;
     let same_scene = r.max_bounces == scene.render.max_bounces
         && r.techniques == scene.render.techniques
-        && r.visible_legs == scene.render.visible_legs;
+        && r.visible_legs == scene.render.visible_legs
+        && r.boundary_terms == scene.render.boundary_terms;
     let scene = if same_scene {
         // Only settings `RenderOptions` carries changed: no copy of the scene.
         Cow::Borrowed(scene)

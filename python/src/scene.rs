@@ -101,6 +101,7 @@ impl PyScene {
         )?;
         d.set_item("bsdf_sampling", r.techniques.bsdf_sampling)?;
         d.set_item("visible_legs", r.visible_legs)?;
+        d.set_item("boundary_terms", r.boundary_terms)?;
         Ok(d)
     }
 

@@ -82,7 +82,8 @@ def grad(scene: Scene, adjoint: Optional[npt.ArrayLike] = None, spp: Optional[in
          laser_sampling: Optional[bool] = None, hidden_geometry_sampling: Optional[bool] = None,
          bsdf_sampling: Optional[bool] = None, visibility: Optional[str] = None,
          subdivision: Optional[float] = None, max_error: Optional[float] = None,
-         visible_legs: Optional[bool] = None) -> Dict[str, Any]:
+         visible_legs: Optional[bool] = None,
+         boundary_terms: Optional[bool] = None) -> Dict[str, Any]:
     """``dLoss/dθ`` for the scene's hidden objects, given either
 
     - ``adjoint = dLoss/dH`` (the render's shape) for a loss of your own, or
@@ -99,16 +100,22 @@ def grad(scene: Scene, adjoint: Optional[npt.ArrayLike] = None, spp: Optional[in
       object without per-vertex albedo;
     - ``loss``: the loss value (float) with ``target``, None with ``adjoint``;
     - ``render``: with ``target``, the float32 render the loss was computed on, else None;
-    - ``truncated_paths``: path contributions whose gradient was cut short (``path``).
+    - ``truncated_paths``: path contributions whose gradient was cut short (``path``);
+    - ``boundary_terms``: whether the visibility boundary terms were added.
 
-    Options are :func:`render`'s. Use the render's seed for a Monte Carlo model: the
+    Options are :func:`render`'s, and ``boundary_terms`` (default True, the scene's
+    ``render.boundary_terms``): add the part of the vertex gradients carried by shadows
+    moving across hidden surfaces (one hidden object occluding another, self-occluding
+    silhouettes; docs/GRADIENTS.md). False gives the interior derivative alone, biased by
+    12-36 % where something occludes, and faster. Use the render's seed for a Monte Carlo model: the
     adjoint pass replays its paths. Inputs of another dtype than float32 are converted
     once; a C-contiguous float32 array is read in place."""
     return _grad(scene, adjoint, target, loss, spp=spp, model=model, seed=seed,
                  threads=threads, max_depth=max_depth, laser_sampling=laser_sampling,
                  hidden_geometry_sampling=hidden_geometry_sampling,
                  bsdf_sampling=bsdf_sampling, visibility=visibility,
-                 subdivision=subdivision, max_error=max_error, visible_legs=visible_legs)
+                 subdivision=subdivision, max_error=max_error, visible_legs=visible_legs,
+                 boundary_terms=boundary_terms)
 
 
 def _schedule_toml(stages: Sequence[Mapping[str, Any]]) -> str:
@@ -139,7 +146,8 @@ def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
         ignore_before: Optional[float] = None, truth: bool = False,
         bin: Optional[Tuple[int, int]] = None, target_spp: int = 4096,
         threads: Optional[int] = None,
-        progress: Optional[Callable[[Dict[str, Any]], Any]] = None) -> Dict[str, Any]:
+        progress: Optional[Callable[[Dict[str, Any]], Any]] = None,
+        boundary_terms: Optional[bool] = None) -> Dict[str, Any]:
     """Fits a hidden triangle mesh to a measurement by the code of ``umbra fit`` (same
     schedule, same defaults; ``umbra fit --help`` describes each option).
 
@@ -156,6 +164,8 @@ def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
     iteration with ``d = {"iteration", "stage", "loss", "data_loss", "smoothness"}``; an
     exception it raises stops the fit and propagates. Ctrl-C stops it at the end of the
     iteration (KeyboardInterrupt; ``resume=True`` continues from the checkpoint).
+    ``boundary_terms``: the visibility boundary terms in the fit's gradients (default: the
+    scene's ``render.boundary_terms``, True; see :func:`grad`).
 
     Returns a dict: ``vertices`` (N, 3) float64 and ``triangles`` (F, 3) uint32, the
     fitted surface (faces fitted dark dropped, as mesh.obj); ``full_mesh`` (every face,
@@ -175,7 +185,8 @@ def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
     kw: Dict[str, Any] = dict(init=init, schedule=toml_text, iters=iters, resume=resume, model=model, spp=spp,
               known_scale=known_scale, background=background, jitter=jitter, irf=irf,
               time_offset=time_offset, reflectance=reflectance, ignore_before=ignore_before,
-              truth=truth, bin=bin, target_spp=target_spp, threads=threads, progress=progress)
+              truth=truth, bin=bin, target_spp=target_spp, threads=threads, progress=progress,
+              boundary_terms=boundary_terms)
     if output is not None:
         return _fit(scene, measured, os.fspath(output), **kw)
     with tempfile.TemporaryDirectory(prefix="umbra-fit-") as tmp:

@@ -108,6 +108,7 @@ def grad(
     hidden_geometry_sampling: Optional[bool] = None,
     bsdf_sampling: Optional[bool] = None,
     visible_legs: Optional[bool] = None,
+    boundary_terms: Optional[bool] = None,
 ) -> Dict[str, Any]:
     """``dLoss/dθ`` for ``adjoint`` (dLoss/dH) or for ``loss`` ("l2" or
     "l2-normalized") against ``target``: a dict with ``vertices`` (list of ``(V_k, 3)``
@@ -138,6 +139,7 @@ def fit(
     target_spp: int = 4096,
     threads: Optional[int] = None,
     progress: Optional[Callable[[Dict[str, Any]], Any]] = None,
+    boundary_terms: Optional[bool] = None,
 ) -> Dict[str, Any]:
     """The fit of ``umbra fit`` (``schedule`` as TOML text); see ``umbra.fit``."""
 

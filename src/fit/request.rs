@@ -92,6 +92,9 @@ pub struct FitRequest {
     pub truth: bool,
     /// `(time, scan)` binning of the measurement; default (8, 2) for LCT, else (1, 1).
     pub bin: Option<(u32, u32)>,
+    /// Visibility boundary terms in the fit's gradients; default the scene's
+    /// `render.boundary_terms` (on).
+    pub boundary_terms: Option<bool>,
 }
 
 impl FitRequest {
@@ -116,6 +119,7 @@ impl FitRequest {
             ignore_before: None,
             truth: false,
             bin: None,
+            boundary_terms: None,
         }
     }
 }
@@ -196,12 +200,15 @@ pub struct FitOutcome {
 /// choices made; `progress` is called after every iteration (false stops the fit with
 /// [`Error::Cancelled`], the checkpoint kept).
 pub fn run(
-    scene: Scene,
+    mut scene: Scene,
     req: &FitRequest,
     progress: Progress,
     log: &mut dyn FnMut(&str),
 ) -> Result<FitOutcome> {
     let n = |name: &str| req.front.name(name);
+    if let Some(b) = req.boundary_terms {
+        scene.render.boundary_terms = b;
+    }
     // Counts that would silently run as something else (spp 0 ran as 1, iters 0 as 4,
     // a 0-spp target was all NaN).
     let target_spp = match req.measurement {

@@ -94,6 +94,10 @@ pub struct FitArgs {
     /// signal instead of 0.68), `1,1` otherwise.
     #[arg(long, value_parser = parse_bin)]
     pub bin: Option<(u32, u32)>,
+    /// Add the visibility boundary terms to the fit's vertex gradients (shadows moving
+    /// across hidden surfaces; default: the scene's `render.boundary_terms`, true).
+    #[arg(long)]
+    pub boundary_terms: Option<bool>,
     /// Worker threads (default or 0: all cores; at most 4 per core, `umbra::threads`).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -159,6 +163,7 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         ignore_before: args.ignore_before,
         truth: args.truth,
         bin: args.bin,
+        boundary_terms: args.boundary_terms,
         ..FitRequest::new(measurement, args.output.clone())
     };
     let total: u64 = req

@@ -44,7 +44,7 @@ use super::edge::EdgePoint;
 use crate::film::Film;
 use crate::geometry::silhouette::EdgeMesh;
 use crate::geometry::{SceneGeometry, SurfaceKind};
-use crate::scene::{KernelSpec, Scene};
+use crate::scene::{KernelSpec, Model, Scene};
 use crate::transport::MeasurementCtx;
 use glam::Vec3;
 use std::f32::consts::FRAC_1_PI;
@@ -60,6 +60,9 @@ pub struct Boundary {
     objects: Vec<ObjectEdges>,
     /// Node spacing along edges (m).
     spacing: f32,
+    /// `path`: the continuation from the sensor point mixes area and BSDF sampling
+    /// (`(c_bsdf, c_hg)`), whose points move differently ([`Boundary::measurement`]).
+    mixture: Option<(f32, f32)>,
 }
 
 struct ObjectEdges {
@@ -80,10 +83,9 @@ pub struct Node {
     /// Edge length the node stands for (m).
     pub length: f32,
     pub frame: EdgePoint,
-    /// The receiver point and its triangle.
-    pub x: Vec3,
-    pub receiver: u32,
-    pub bary: [f32; 2],
+    /// The hidden receiver point behind the edge: `None` where the ray misses the hidden
+    /// objects (kept only for `path`'s foreground term).
+    pub receiver: Option<Point>,
     /// `cos` at the wall point `o` toward the edge (`n_w · d`).
     pub cos_o: f32,
 }
@@ -92,7 +94,7 @@ pub struct Node {
 pub type VertexGrad = Vec<Vec<[f64; 3]>>;
 
 impl Boundary {
-    pub fn new(scene: &Scene, film: &Film) -> Boundary {
+    pub fn new(scene: &Scene, film: &Film, model: Model) -> Boundary {
         let objects = scene
             .objects
             .iter()
@@ -105,9 +107,14 @@ impl Boundary {
             KernelSpec::Box => film.width,
             KernelSpec::Gaussian { sigma_opl } => sigma_opl as f64,
         } as f32;
+        let tech = &scene.render.techniques;
+        let mixture = (model == Model::Path)
+            .then(|| crate::transport::path::technique_probabilities(tech, true))
+            .filter(|&(c_bsdf, _)| c_bsdf > 0.0);
         Boundary {
             objects,
             spacing: NODE_SPACING * width,
+            mixture,
         }
     }
 
@@ -149,10 +156,15 @@ impl Boundary {
                     if geom.occluded(o, lit) {
                         continue;
                     }
-                    let Some(hit) = geom.intersect(lit, frame.d) else {
-                        continue;
-                    };
-                    if !matches!(hit.kind, SurfaceKind::Hidden { .. }) {
+                    let receiver = geom
+                        .intersect(lit, frame.d)
+                        .filter(|h| matches!(h.kind, SurfaceKind::Hidden { .. }))
+                        .map(|h| Point {
+                            flat: h.flat,
+                            bary: h.bary,
+                            x: h.p,
+                        });
+                    if receiver.is_none() && self.mixture.is_none() {
                         continue;
                     }
                     nodes.push(Node {
@@ -161,9 +173,7 @@ impl Boundary {
                         s,
                         length,
                         frame,
-                        x: hit.p,
-                        receiver: hit.flat,
-                        bary: hit.bary,
+                        receiver,
                         cos_o,
                     });
                 }
@@ -190,24 +200,145 @@ impl Boundary {
         let from_s = (!confocal).then(|| (&views.sensor.1[..], ctx.x_s, ctx.x_l));
         for (nodes, o, other) in std::iter::once(from_l).chain(from_s) {
             views.nodes_used += nodes.len() as u64;
+            // Whether a `path` continuation from the sensor point that BSDF-samples the
+            // receiver sees this shadow: a shadow cast from x_s is then a change of the
+            // first surface hit (foreground minus background, below); one cast from x_l
+            // falls on a point that slides along its ray from x_s.
+            let seen_from_sensor = o == ctx.x_s;
             for node in nodes {
-                let Some((value, opl)) = integrand(ctx, node, o, other) else {
-                    continue;
-                };
-                let (a, _) = film.adjoint(opl, adjoint);
-                if a == 0.0 || (!confocal && ctx.geom.occluded(node.x, other)) {
-                    continue;
+                if let Some(receiver) = &node.receiver {
+                    self.background(scene, ctx, film, adjoint, node, receiver, other, grad);
                 }
-                scatter(
-                    scene,
-                    ctx.geom,
-                    node,
-                    a * value as f64 * node.length as f64,
-                    grad,
-                );
+                if self.mixture.is_some() && seen_from_sensor {
+                    self.foreground(scene, ctx, film, adjoint, node, other, grad);
+                }
             }
         }
     }
+
+    /// The receiver's part: `− F_b J (∂y/∂θ − (r_y/r_x) ∂x/∂θ)·n`, `∂x/∂θ` the velocity of
+    /// the receiver point as the interior term moves it: with its material (area
+    /// sampling), or along its ray from the sensor point (`path`'s BSDF-sampled share, for
+    /// a shadow cast from the laser spot; for one cast from the sensor point that motion
+    /// is along the view ray, normal to `n`).
+    #[allow(clippy::too_many_arguments)]
+    fn background(
+        &self,
+        scene: &Scene,
+        ctx: &MeasurementCtx,
+        film: &Film,
+        adjoint: &[f32],
+        node: &Node,
+        receiver: &Point,
+        other: Vec3,
+        grad: &mut VertexGrad,
+    ) {
+        let o = node.frame.o;
+        let Some((value, opl)) = integrand(ctx, receiver, node, o, other) else {
+            return;
+        };
+        let (a, _) = film.adjoint(opl, adjoint);
+        if a == 0.0 || (other != o && ctx.geom.occluded(receiver.x, other)) {
+            return;
+        }
+        let w = a * value as f64 * node.length as f64;
+        let share = self.bsdf_share(ctx, receiver) as f64;
+        let motion = Motion {
+            edge: -w,
+            material: w * (1.0 - share),
+            along_sensor_ray: if o == ctx.x_s { 0.0 } else { w * share },
+        };
+        scatter(scene, ctx, node, Some(receiver), motion, grad);
+    }
+
+    /// `w_bsdf`: the share of `path`'s continuation from the sensor point that reaches
+    /// `p` by BSDF sampling (balance heuristic; 0 for the other models).
+    fn bsdf_share(&self, ctx: &MeasurementCtx, p: &Point) -> f32 {
+        let Some((c_bsdf, c_hg)) = self.mixture else {
+            return 0.0;
+        };
+        let geom = ctx.geom;
+        let to = p.x - ctx.x_s;
+        let d2 = to.length_squared();
+        let d = to / d2.sqrt();
+        let cos_y = geom.hidden[p.flat as usize].n.dot(d).abs();
+        let p_bsdf = ctx.n_w.dot(d).max(0.0) * FRAC_1_PI * cos_y / d2;
+        let dist = if ctx.scene.render.techniques.hidden_geometry_includes_wall {
+            &geom.hidden_and_wall_area
+        } else {
+            &geom.hidden_area
+        };
+        let p_hg = dist.prob(p.flat) / geom.hidden_area_of(p.flat);
+        let q = c_bsdf * p_bsdf + c_hg * p_hg;
+        if q > 0.0 {
+            c_bsdf * p_bsdf / q
+        } else {
+            0.0
+        }
+    }
+
+    /// `path`'s BSDF-sampled continuation from the sensor point parameterises the first
+    /// hidden point by direction: across a silhouette seen from `x_s`, the hit jumps from
+    /// the occluder (foreground, at the edge) to the receiver. The background's part is
+    /// the area term above; this adds the foreground's, `+ w_bsdf F(y) J(y) (∂y/∂θ)·n`,
+    /// at the occluder's point just inside the edge.
+    #[allow(clippy::too_many_arguments)]
+    fn foreground(
+        &self,
+        scene: &Scene,
+        ctx: &MeasurementCtx,
+        film: &Film,
+        adjoint: &[f32],
+        node: &Node,
+        other: Vec3,
+        grad: &mut VertexGrad,
+    ) {
+        let f = &node.frame;
+        let inside = f.y - 4.0 * ctx.geom.eps * f.n;
+        let Some(hit) = ctx.geom.intersect(f.o, (inside - f.o).normalize()) else {
+            return;
+        };
+        if !matches!(hit.kind, SurfaceKind::Hidden { .. }) {
+            return;
+        }
+        let fg = Point {
+            flat: hit.flat,
+            bary: hit.bary,
+            x: hit.p,
+        };
+        let Some((value, opl)) = integrand(ctx, &fg, node, f.o, other) else {
+            return;
+        };
+        let (a, _) = film.adjoint(opl, adjoint);
+        if a == 0.0 || (other != f.o && ctx.geom.occluded(fg.x, other)) {
+            return;
+        }
+        let w = a * value as f64 * node.length as f64 * self.bsdf_share(ctx, &fg) as f64;
+        let motion = Motion {
+            edge: w,
+            material: 0.0,
+            along_sensor_ray: 0.0,
+        };
+        scatter(scene, ctx, node, None, motion, grad);
+    }
+}
+
+/// A hidden point: its triangle, barycentrics and position.
+#[derive(Clone, Copy, Debug)]
+pub struct Point {
+    pub flat: u32,
+    pub bary: [f32; 2],
+    pub x: Vec3,
+}
+
+/// How a node's weight moves the vertices: along the edge's motion (`edge` times
+/// `(∂y/∂θ)·n`), with the receiver's material point (`material` times
+/// `−(r_y/r_x)(∂x_R/∂θ)·n`), and with the receiver's point on its ray from the sensor
+/// point (`along_sensor_ray`, the same with that point's velocity).
+struct Motion {
+    edge: f64,
+    material: f64,
+    along_sensor_ray: f64,
 }
 
 /// The nodes seen from the last laser spot and the last sensor point, reused while
@@ -234,15 +365,21 @@ impl ViewCache {
     }
 }
 
-/// `F_b J / k_b` at the node's receiver for the wall points `o` (the shadow's) and `other`,
-/// and the receiver's OPL; `None` where the receiver cannot scatter between them.
-fn integrand(ctx: &MeasurementCtx, node: &Node, o: Vec3, other: Vec3) -> Option<(f32, f32)> {
-    let tri = &ctx.geom.hidden[node.receiver as usize];
+/// `F_b J / k_b` at the hidden point `p` behind (or at) the node, for the wall points `o`
+/// (the shadow's) and `other`, and `p`'s OPL; `None` where `p` cannot scatter between
+/// them.
+fn integrand(
+    ctx: &MeasurementCtx,
+    p: &Point,
+    node: &Node,
+    o: Vec3,
+    other: Vec3,
+) -> Option<(f32, f32)> {
+    let tri = &ctx.geom.hidden[p.flat as usize];
     if tri.retro {
         return None;
     }
-    let x = node.x;
-    let (to_o, to_other) = (o - x, other - x);
+    let (to_o, to_other) = (o - p.x, other - p.x);
     let (c_o, c_other) = (tri.n.dot(to_o), tri.n.dot(to_other));
     let facing = if tri.two_sided {
         c_o * c_other > 0.0
@@ -260,7 +397,7 @@ fn integrand(ctx: &MeasurementCtx, node: &Node, o: Vec3, other: Vec3) -> Option<
     }
     let r2 = r_other * r_other;
     let g_other = (c_other * cw_other).abs() / (r2 * r2);
-    let f_x = tri.albedo_at(node.bary) * FRAC_1_PI;
+    let f_x = tri.albedo_at(p.bary) * FRAC_1_PI;
     let c = ctx.power * ctx.f_wall * ctx.f_wall;
     Some((
         c * f_x * node.cos_o * node.frame.area_per_length() * g_other,
@@ -268,24 +405,47 @@ fn integrand(ctx: &MeasurementCtx, node: &Node, o: Vec3, other: Vec3) -> Option<
     ))
 }
 
-/// `grad −= w (∂y/∂θ − (r_y/r_x) ∂x_R/∂θ)·n` for every vertex the node depends on.
-fn scatter(scene: &Scene, geom: &SceneGeometry, node: &Node, w: f64, grad: &mut VertexGrad) {
+/// Adds a node's weights to the vertices it moves ([`Motion`]): `edge (∂y/∂θ)·n` to the
+/// edge's ends, `+ (r_y/r_x) β_i (material n + along_sensor_ray (d_s·n)/(n_x·d_s) n_x)` to
+/// the receiver's corners (`d_s` the ray from the sensor point, `n_x` the receiver's
+/// normal: a point on a fixed ray moves by `d_s (n_x·v)/(n_x·d_s)` when its plane moves
+/// by `v`).
+fn scatter(
+    scene: &Scene,
+    ctx: &MeasurementCtx,
+    node: &Node,
+    receiver: Option<&Point>,
+    m: Motion,
+    grad: &mut VertexGrad,
+) {
     let n = node.frame.n.as_dvec3();
-    let mut add = |object: usize, v: u32, k: f64| {
+    let mut add = |object: usize, v: u32, dir: glam::DVec3| {
         let g = &mut grad[object][v as usize];
-        for (g, n) in g.iter_mut().zip(n.to_array()) {
-            *g += k * n;
+        for (g, d) in g.iter_mut().zip(dir.to_array()) {
+            *g += d;
         }
     };
     let o = node.object as usize;
-    add(o, node.ends[0], -w * (1.0 - node.s as f64));
-    add(o, node.ends[1], -w * node.s as f64);
-    let ratio = node.frame.r_y as f64 / (node.x - node.frame.o).length() as f64;
-    let (ro, rt) = geom.flat_to_local[node.receiver as usize];
+    add(o, node.ends[0], m.edge * (1.0 - node.s as f64) * n);
+    add(o, node.ends[1], m.edge * node.s as f64 * n);
+    let Some(r) = receiver else {
+        return;
+    };
+    let ratio = node.frame.r_y as f64 / (r.x - node.frame.o).length() as f64;
+    let mut dir = m.material * n;
+    if m.along_sensor_ray != 0.0 {
+        let n_x = ctx.geom.hidden[r.flat as usize].n.as_dvec3();
+        let d_s = (r.x - ctx.x_s).normalize().as_dvec3();
+        let cos = n_x.dot(d_s);
+        if cos.abs() > 1e-6 {
+            dir += m.along_sensor_ray * d_s.dot(n) / cos * n_x;
+        }
+    }
+    let (ro, rt) = ctx.geom.flat_to_local[r.flat as usize];
     let corners = scene.objects[ro as usize].mesh.triangles[rt as usize];
-    let [b1, b2] = node.bary.map(|b| b as f64);
+    let [b1, b2] = r.bary.map(|b| b as f64);
     for (v, beta) in corners.into_iter().zip([1.0 - b1 - b2, b1, b2]) {
-        add(ro as usize, v, w * ratio * beta);
+        add(ro as usize, v, ratio * beta * dir);
     }
 }
 

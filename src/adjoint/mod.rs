@@ -137,7 +137,7 @@ pub fn gradient(
     let tris = geom.hidden.len();
     let chunks = MAX_CHUNKS.min(measurements).max(1);
     let spp = opts.spp.max(1);
-    let edges = boundary_terms_apply(scene, opts).then(|| Boundary::new(scene, &film));
+    let edges = boundary_terms_apply(scene, opts).then(|| Boundary::new(scene, &film, model));
     let partial: Vec<ChunkGrad> = (0..chunks)
         .into_par_iter()
         .map(|c| {

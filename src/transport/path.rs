@@ -102,7 +102,7 @@ pub const BSDF_SHARE_AT_WALL: f32 = 0.1;
 pub const BSDF_SHARE_AT_HIDDEN: f32 = 0.5;
 
 /// `(c_bsdf, c_hg)`: one-sample MIS probabilities of the two continuation techniques.
-fn technique_probabilities(tech: &Techniques, on_wall: bool) -> (f32, f32) {
+pub(crate) fn technique_probabilities(tech: &Techniques, on_wall: bool) -> (f32, f32) {
     match (tech.bsdf_sampling, tech.hidden_geometry_sampling) {
         (true, true) => {
             let c = if on_wall {

@@ -22,12 +22,21 @@
 //! time of flight is the receiver's full OPL, through the film's kernel like the interior
 //! term. With `x_l = x_s` (confocal) the two shadows coincide: one integral, `V(x, o') = 1`.
 //!
-//! The edge integral is a deterministic midpoint rule: nodes spaced a quarter of the
-//! kernel's width (`σ`, or a bin for the box kernel) along each edge, at most
-//! [`MAX_NODES_PER_EDGE`]. No random numbers: same bits on any thread count, and the same
-//! term whether the interior estimator is `tri3`, `mc3` or `path`. The nodes seen from one
-//! wall point (visibility `V(o, y)` and the receiver hit) are computed once and shared by
-//! consecutive measurements with that point (the laser spot of a `single` capture).
+//! `path` reaches its first hidden point from the sensor point by a one-sample mixture of
+//! area sampling (the form above) and BSDF sampling, whose point is found by a ray and
+//! slides along it when the surface moves. For the BSDF share `w_bsdf` (the balance
+//! heuristic's weight) the domain is the sphere of directions at `x_s`: a silhouette seen
+//! from `x_s` separates the occluder (foreground) from the receiver (background), and the
+//! term is `+ w_bsdf (F J)_fg (∂y/∂θ)·n − w_bsdf (F J)_bg (∂y/∂θ)·n` (Li et al. 2018's
+//! primary edges, Mitsuba 3's `ΔL`); a shadow cast from `x_l` keeps the area form with the
+//! receiver's velocity along its ray from `x_s`.
+//!
+//! Nodes ([`super::edge_nodes`]): a deterministic midpoint rule for `tri3`; for the Monte
+//! Carlo models `spp` points per wall point by systematic sampling of the silhouettes'
+//! subtended angles, seeded from the seed and the wall point (same bits on any thread
+//! count, unbiased). The nodes seen from one wall point (visibility `V(o, y)` and the
+//! receiver hit) are computed once and shared by consecutive measurements with that
+//! point (the laser spot of a `single` capture).
 //!
 //! The weights are detached (their derivatives are second order), so the adjoint is a
 //! scatter of `a = Σ_b δH_b F_b J dℓ` along `−n`: `(1 − s)` of it to the edge's first
@@ -35,85 +44,60 @@
 //!
 //! Supports: one- and two-sided surfaces, open and closed meshes (boundary edges, contours,
 //! non-manifold edges), per-vertex albedo, all capture types, box and Gaussian kernels.
-//! Does not: shadows between hidden points (paths of 5 or more bounces in `path`), a finite
+//! Does not: paths of 5 or more bounces in `path` (shadows between hidden points, and the
+//! wall legs' shadows on longer paths), a finite
 //! laser spot's penumbra (the spot is taken at its centre), the laser and detector legs
 //! (`visible_legs` is a step in θ: no derivative), retroreflective receivers. A mesh seam
 //! (two copies of a vertex) sends an edge's share to the copies of the edge's first face.
 
-use super::edge::EdgePoint;
+use super::edge_nodes::{EdgeSet, Node, Placement, Point, ViewCache};
 use crate::film::Film;
-use crate::geometry::silhouette::EdgeMesh;
-use crate::geometry::{SceneGeometry, SurfaceKind};
+use crate::geometry::SurfaceKind;
 use crate::scene::{KernelSpec, Model, Scene};
-use crate::transport::MeasurementCtx;
+use crate::transport::{MeasurementCtx, RenderOptions};
 use glam::Vec3;
 use std::f32::consts::FRAC_1_PI;
 
-/// Upper bound on the quadrature nodes of one edge seen from one wall point.
-pub const MAX_NODES_PER_EDGE: usize = 512;
-
-/// Node spacing along an edge, in units of the kernel's width.
+/// Node spacing of `tri3`'s quadrature along an edge, in units of the kernel's width.
 const NODE_SPACING: f32 = 0.25;
 
-/// The hidden meshes' edges, built once per gradient.
+/// The boundary estimator of one gradient: the hidden meshes' edges and where to
+/// evaluate along them.
 pub struct Boundary {
-    objects: Vec<ObjectEdges>,
-    /// Node spacing along edges (m).
-    spacing: f32,
+    edges: EdgeSet,
+    placement: Placement,
     /// `path`: the continuation from the sensor point mixes area and BSDF sampling
     /// (`(c_bsdf, c_hg)`), whose points move differently ([`Boundary::measurement`]).
     mixture: Option<(f32, f32)>,
-}
-
-struct ObjectEdges {
-    edges: EdgeMesh,
-    /// The object's triangles over its own (unwelded) vertex indices.
-    triangles: Vec<[u32; 3]>,
-}
-
-/// One quadrature node: a point of a silhouette edge seen from `o`, visible from `o`,
-/// and the hidden receiver point behind it.
-#[derive(Clone, Copy, Debug)]
-pub struct Node {
-    pub object: u32,
-    /// The edge's end vertices, as the object's own vertex indices.
-    pub ends: [u32; 2],
-    /// Position along the edge, `y = (1 − s) p0 + s p1`.
-    pub s: f32,
-    /// Edge length the node stands for (m).
-    pub length: f32,
-    pub frame: EdgePoint,
-    /// The hidden receiver point behind the edge: `None` where the ray misses the hidden
-    /// objects (kept only for `path`'s foreground term).
-    pub receiver: Option<Point>,
-    /// `cos` at the wall point `o` toward the edge (`n_w · d`).
-    pub cos_o: f32,
 }
 
 /// Per-object vertex gradients (the scatter's target).
 pub type VertexGrad = Vec<Vec<[f64; 3]>>;
 
 impl Boundary {
-    pub fn new(scene: &Scene, film: &Film, model: Model) -> Boundary {
-        let objects = scene
-            .objects
-            .iter()
-            .map(|o| ObjectEdges {
-                edges: EdgeMesh::new(&o.mesh.positions, &o.mesh.triangles),
-                triangles: o.mesh.triangles.clone(),
-            })
-            .collect();
+    /// For a gradient of `opts.model`: a deterministic quadrature for `tri3`, `opts.spp`
+    /// sampled nodes per wall point for the Monte Carlo models ([`Placement`]).
+    pub fn new(scene: &Scene, film: &Film, opts: &RenderOptions) -> Boundary {
         let width = match film.kernel {
             KernelSpec::Box => film.width,
             KernelSpec::Gaussian { sigma_opl } => sigma_opl as f64,
         } as f32;
+        let placement = match opts.model {
+            Model::Tri3 => Placement::Quadrature {
+                spacing: NODE_SPACING * width,
+            },
+            _ => Placement::Sampled {
+                count: opts.spp.max(1),
+                seed: opts.seed,
+            },
+        };
         let tech = &scene.render.techniques;
-        let mixture = (model == Model::Path)
+        let mixture = (opts.model == Model::Path)
             .then(|| crate::transport::path::technique_probabilities(tech, true))
             .filter(|&(c_bsdf, _)| c_bsdf > 0.0);
         Boundary {
-            objects,
-            spacing: NODE_SPACING * width,
+            edges: EdgeSet::new(scene),
+            placement,
             mixture,
         }
     }
@@ -122,64 +106,6 @@ impl Boundary {
     /// `false` when the path-length filter excludes three-bounce paths.
     pub fn applies(scene: &Scene) -> bool {
         scene.render.filter_bounces.is_none_or(|f| f == 3)
-    }
-
-    /// The nodes of every silhouette edge seen from the wall point `o`.
-    pub fn nodes(&self, geom: &SceneGeometry, o: Vec3) -> Vec<Node> {
-        let mut nodes = Vec::new();
-        let offset = 4.0 * geom.eps;
-        for (oi, obj) in self.objects.iter().enumerate() {
-            let mesh = &obj.edges;
-            for e in mesh.silhouettes(o) {
-                let edge = &mesh.edges[e as usize];
-                let [p0, p1] = edge.v.map(|i| mesh.positions[i as usize]);
-                let face = edge.faces[0];
-                let q = mesh.third_vertex(e as usize, face);
-                let Some(ends) = original_ends(&obj.triangles[face as usize], mesh, edge.v) else {
-                    continue;
-                };
-                let len = (p1 - p0).length();
-                let count = ((len / self.spacing).ceil() as usize).clamp(1, MAX_NODES_PER_EDGE);
-                let length = len / count as f32;
-                for j in 0..count {
-                    let s = (j as f32 + 0.5) / count as f32;
-                    let y = p0.lerp(p1, s);
-                    let Some(frame) = EdgePoint::new(o, y, p1 - p0, q) else {
-                        continue;
-                    };
-                    let cos_o = geom.wall_normal.dot(frame.d);
-                    if cos_o <= 0.0 {
-                        continue;
-                    }
-                    // Just on the lit side: the edge's own faces lie on the other.
-                    let lit = y + offset * frame.n;
-                    if geom.occluded(o, lit) {
-                        continue;
-                    }
-                    let receiver = geom
-                        .intersect(lit, frame.d)
-                        .filter(|h| matches!(h.kind, SurfaceKind::Hidden { .. }))
-                        .map(|h| Point {
-                            flat: h.flat,
-                            bary: h.bary,
-                            x: h.p,
-                        });
-                    if receiver.is_none() && self.mixture.is_none() {
-                        continue;
-                    }
-                    nodes.push(Node {
-                        object: oi as u32,
-                        ends,
-                        s,
-                        length,
-                        frame,
-                        receiver,
-                        cos_o,
-                    });
-                }
-            }
-        }
-        nodes
     }
 
     /// Adds the boundary term of measurement `ctx` (adjoint histogram `adjoint`) to
@@ -195,23 +121,46 @@ impl Boundary {
         grad: &mut VertexGrad,
     ) {
         let confocal = ctx.x_l == ctx.x_s;
-        views.update(self, ctx, confocal);
-        let from_l = (&views.laser.1[..], ctx.x_l, ctx.x_s);
-        let from_s = (!confocal).then(|| (&views.sensor.1[..], ctx.x_s, ctx.x_l));
-        for (nodes, o, other) in std::iter::once(from_l).chain(from_s) {
-            views.nodes_used += nodes.len() as u64;
-            // Whether a `path` continuation from the sensor point that BSDF-samples the
-            // receiver sees this shadow: a shadow cast from x_s is then a change of the
-            // first surface hit (foreground minus background, below); one cast from x_l
-            // falls on a point that slides along its ray from x_s.
-            let seen_from_sensor = o == ctx.x_s;
-            for node in nodes {
-                if let Some(receiver) = &node.receiver {
-                    self.background(scene, ctx, film, adjoint, node, receiver, other, grad);
-                }
-                if self.mixture.is_some() && seen_from_sensor {
-                    self.foreground(scene, ctx, film, adjoint, node, other, grad);
-                }
+        let keep_missing = self.mixture.is_some();
+        let batches = self.placement.batches();
+        for (slot, o, other) in [(0, ctx.x_l, ctx.x_s), (1, ctx.x_s, ctx.x_l)] {
+            if slot == 1 && confocal {
+                break;
+            }
+            for batch in 0..batches {
+                let nodes = views.nodes(slot, o, batches, || {
+                    self.edges
+                        .nodes(ctx.geom, o, self.placement, batch, keep_missing)
+                });
+                self.evaluate(scene, ctx, film, adjoint, &nodes, o, other, grad);
+            }
+        }
+    }
+
+    /// The terms of `nodes`, seen from `o`.
+    #[allow(clippy::too_many_arguments)]
+    fn evaluate(
+        &self,
+        scene: &Scene,
+        ctx: &MeasurementCtx,
+        film: &Film,
+        adjoint: &[f32],
+        nodes: &[Node],
+        o: Vec3,
+        other: Vec3,
+        grad: &mut VertexGrad,
+    ) {
+        // Whether a `path` continuation from the sensor point that BSDF-samples the
+        // receiver sees this shadow: a shadow cast from x_s is then a change of the
+        // first surface hit (foreground minus background, below); one cast from x_l
+        // falls on a point that slides along its ray from x_s.
+        let seen_from_sensor = o == ctx.x_s;
+        for node in nodes {
+            if let Some(receiver) = &node.receiver {
+                self.background(scene, ctx, film, adjoint, node, receiver, other, grad);
+            }
+            if self.mixture.is_some() && seen_from_sensor {
+                self.foreground(scene, ctx, film, adjoint, node, other, grad);
             }
         }
     }
@@ -323,14 +272,6 @@ impl Boundary {
     }
 }
 
-/// A hidden point: its triangle, barycentrics and position.
-#[derive(Clone, Copy, Debug)]
-pub struct Point {
-    pub flat: u32,
-    pub bary: [f32; 2],
-    pub x: Vec3,
-}
-
 /// How a node's weight moves the vertices: along the edge's motion (`edge` times
 /// `(∂y/∂θ)·n`), with the receiver's material point (`material` times
 /// `−(r_y/r_x)(∂x_R/∂θ)·n`), and with the receiver's point on its ray from the sensor
@@ -339,30 +280,6 @@ struct Motion {
     edge: f64,
     material: f64,
     along_sensor_ray: f64,
-}
-
-/// The nodes seen from the last laser spot and the last sensor point, reused while
-/// consecutive measurements share them (a `single` capture's laser spot; an exhaustive
-/// capture's sensor point).
-#[derive(Default)]
-pub struct ViewCache {
-    laser: (Option<Vec3>, Vec<Node>),
-    sensor: (Option<Vec3>, Vec<Node>),
-    /// Nodes evaluated, summed over measurements.
-    pub nodes_used: u64,
-}
-
-impl ViewCache {
-    fn update(&mut self, b: &Boundary, ctx: &MeasurementCtx, confocal: bool) {
-        for (view, o, needed) in [
-            (&mut self.laser, ctx.x_l, true),
-            (&mut self.sensor, ctx.x_s, !confocal),
-        ] {
-            if needed && view.0 != Some(o) {
-                *view = (Some(o), b.nodes(ctx.geom, o));
-            }
-        }
-    }
 }
 
 /// `F_b J / k_b` at the hidden point `p` behind (or at) the node, for the wall points `o`
@@ -447,10 +364,4 @@ fn scatter(
     for (v, beta) in corners.into_iter().zip([1.0 - b1 - b2, b1, b2]) {
         add(ro as usize, v, ratio * beta * dir);
     }
-}
-
-/// The corners of `tri` (own vertex indices) that weld to the edge's ends `v`.
-fn original_ends(tri: &[u32; 3], mesh: &EdgeMesh, v: [u32; 2]) -> Option<[u32; 2]> {
-    let find = |w: u32| tri.iter().copied().find(|&c| mesh.weld[c as usize] == w);
-    Some([find(v[0])?, find(v[1])?])
 }

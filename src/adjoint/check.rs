@@ -8,6 +8,12 @@
 //! rounding would swamp small steps. The loss is L2 against a target rendered from the
 //! scene with every hidden object moved 2 cm away from the wall (with another seed), so
 //! the gradient is that of a realistic fit's first step.
+//!
+//! Finite differences at fixed random numbers (or of `tri3`'s piecewise-constant
+//! visibility) do not see a shadow move: no sample changes its visibility under a small
+//! step. So the adjoint compared is the interior derivative (boundary terms off), and
+//! the visibility boundary terms ([`super::boundary`]) are reported next to it; they are
+//! checked against an exact reference in `tests/gradient_bias.rs`.
 
 use super::{gradient, Gradient, Loss};
 use crate::error::Result;
@@ -41,7 +47,11 @@ impl std::fmt::Display for Param {
 #[derive(Clone, Debug)]
 pub struct Row {
     pub param: Param,
+    /// The interior derivative (what finite differences at fixed random numbers see).
     pub adjoint: f64,
+    /// The visibility boundary terms' part of the gradient (0 when they are off or do
+    /// not apply); the gradient `umbra grad` returns is `adjoint + boundary`.
+    pub boundary: f64,
     /// `(h, finite difference)` per step.
     pub fd: Vec<(f64, f64)>,
 }
@@ -168,14 +178,25 @@ pub fn setup(scene: &Scene, opts: &RenderOptions) -> Result<(Vec<f32>, Gradient,
 /// Compares the adjoint with central differences at steps `hs` (vertex steps in m;
 /// albedo steps are 30x larger, the albedo's scale being ~1 against a mesh's ~0.03 m).
 pub fn run(scene: &Scene, opts: &RenderOptions, params: &[Param], hs: &[f64]) -> Result<Vec<Row>> {
-    let (target, g, base) = setup(scene, opts)?;
+    let (target, full, base) = setup(scene, opts)?;
+    let mut interior_scene = scene.clone();
+    interior_scene.render.boundary_terms = false;
+    let g = if full.boundary {
+        let h0: Vec<f32> = primal(scene, &base, opts)?.iter().map(|&v| v as f32).collect();
+        let (_, adjoint) = Loss::L2.evaluate(&h0, &target, scene.film.temporal_bins as usize)?;
+        gradient(&interior_scene, &base, opts, &adjoint, None)?
+    } else {
+        full.clone()
+    };
+    let value = |g: &Gradient, p: Param| match p {
+        Param::Vertex(o, v, k) => g.vertices[o][v][k],
+        Param::Albedo(o) => g.albedo[o],
+        Param::VertexAlbedo(o, v) => g.vertex_albedo[o].as_ref().map_or(0.0, |a| a[v]),
+    };
     let mut rows = Vec::new();
     for &p in params {
-        let adjoint = match p {
-            Param::Vertex(o, v, k) => g.vertices[o][v][k],
-            Param::Albedo(o) => g.albedo[o],
-            Param::VertexAlbedo(o, v) => g.vertex_albedo[o].as_ref().map_or(0.0, |a| a[v]),
-        };
+        let adjoint = value(&g, p);
+        let boundary = value(&full, p) - adjoint;
         let mut fd = Vec::new();
         for &h in hs {
             let h = if matches!(p, Param::Albedo(_)) {
@@ -191,6 +212,7 @@ pub fn run(scene: &Scene, opts: &RenderOptions, params: &[Param], hs: &[f64]) ->
         rows.push(Row {
             param: p,
             adjoint,
+            boundary,
             fd,
         });
     }

@@ -33,6 +33,7 @@ pub mod boundary;
 pub mod check;
 pub mod dual;
 pub mod edge;
+pub mod edge_nodes;
 pub mod loss;
 
 pub use loss::Loss;
@@ -137,13 +138,13 @@ pub fn gradient(
     let tris = geom.hidden.len();
     let chunks = MAX_CHUNKS.min(measurements).max(1);
     let spp = opts.spp.max(1);
-    let edges = boundary_terms_apply(scene, opts).then(|| Boundary::new(scene, &film, model));
+    let edges = boundary_terms_apply(scene, opts).then(|| Boundary::new(scene, &film, opts));
     let partial: Vec<ChunkGrad> = (0..chunks)
         .into_par_iter()
         .map(|c| {
             let mut tri_grad = vec![[0.0; TRI_PARAMS]; tris];
             let mut vertex_grad = edges.as_ref().map(|_| zero_vertex_grad(scene));
-            let mut views = boundary::ViewCache::default();
+            let mut views = edge_nodes::ViewCache::default();
             let mut scratch = PathScratch::default();
             for m in (c * measurements / chunks)..((c + 1) * measurements / chunks) {
                 if progress.is_some_and(|p| p.cancel.load(Ordering::Relaxed)) {

@@ -259,14 +259,48 @@ pub fn grad_scene() -> Result<Scene> {
     Ok(s)
 }
 
+/// [`grad_scene`] with a plate 1.2 m square 0.3 m behind the letter, which casts its
+/// shadows on it: the boundary terms' cost where they matter.
+pub fn grad_scene_occluded() -> Result<Scene> {
+    let mut s = grad_scene()?;
+    let points = s
+        .objects
+        .iter()
+        .flat_map(|o| o.mesh.positions.iter().copied());
+    let (lo, hi) = points.fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(l, h), p| {
+        (l.min(p), h.max(p))
+    });
+    let c = 0.5 * (lo + hi);
+    let (h, z) = (0.6, hi.z + 0.3);
+    let obj = format!(
+        "v {} {} {z}\nv {} {} {z}\nv {} {} {z}\nv {} {} {z}\nf 1 4 3 2\n",
+        c.x - h,
+        c.y - h,
+        c.x + h,
+        c.y - h,
+        c.x + h,
+        c.y + h,
+        c.x - h,
+        c.y + h
+    );
+    let mut plate = s.objects[0].clone();
+    plate.name = "plate".into();
+    plate.mesh =
+        crate::geometry::mesh::TriMesh::parse_obj(&obj, std::path::Path::new("plate.obj"))?;
+    s.objects.push(plate);
+    Ok(s)
+}
+
 /// Forward and adjoint times of one model at one spp.
 pub struct GradTiming {
     pub model: Model,
     pub spp: u32,
     /// Median seconds of the forward render.
     pub forward: f64,
-    /// Median seconds of the adjoint pass alone (given `dLoss/dH`).
+    /// Median seconds of the adjoint pass alone (given `dLoss/dH`), boundary terms on.
     pub adjoint: f64,
+    /// The same without the boundary terms (interior derivative only).
+    pub interior: f64,
 }
 
 /// Times forward and adjoint passes, interleaved, `reps` times each after a warm-up;
@@ -284,7 +318,9 @@ pub fn grad_timing(scene: &Scene, model: Model, spp: u32, reps: usize) -> Result
     let primal = r.render(None)?;
     let (_, adj) = crate::adjoint::Loss::L2.evaluate(&primal.data, &target, primal.bins())?;
     gradient(scene, &geom, &opts, &adj, None)?;
-    let (mut fw, mut ad) = (Vec::new(), Vec::new());
+    let mut interior_scene = scene.clone();
+    interior_scene.render.boundary_terms = false;
+    let (mut fw, mut ad, mut int) = (Vec::new(), Vec::new(), Vec::new());
     for _ in 0..reps.max(1) {
         let t = Instant::now();
         std::hint::black_box(r.render(None)?);
@@ -292,6 +328,9 @@ pub fn grad_timing(scene: &Scene, model: Model, spp: u32, reps: usize) -> Result
         let t = Instant::now();
         std::hint::black_box(gradient(scene, &geom, &opts, &adj, None)?);
         ad.push(t.elapsed().as_secs_f64());
+        let t = Instant::now();
+        std::hint::black_box(gradient(&interior_scene, &geom, &opts, &adj, None)?);
+        int.push(t.elapsed().as_secs_f64());
     }
     let median = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
@@ -302,6 +341,7 @@ pub fn grad_timing(scene: &Scene, model: Model, spp: u32, reps: usize) -> Result
         spp,
         forward: median(fw),
         adjoint: median(ad),
+        interior: median(int),
     })
 }
 

@@ -182,7 +182,10 @@ pub fn run(scene: &Scene, opts: &RenderOptions, params: &[Param], hs: &[f64]) ->
     let mut interior_scene = scene.clone();
     interior_scene.render.boundary_terms = false;
     let g = if full.boundary {
-        let h0: Vec<f32> = primal(scene, &base, opts)?.iter().map(|&v| v as f32).collect();
+        let h0: Vec<f32> = primal(scene, &base, opts)?
+            .iter()
+            .map(|&v| v as f32)
+            .collect();
         let (_, adjoint) = Loss::L2.evaluate(&h0, &target, scene.film.temporal_bins as usize)?;
         gradient(&interior_scene, &base, opts, &adjoint, None)?
     } else {

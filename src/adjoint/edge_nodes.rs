@@ -32,6 +32,10 @@ pub const MAX_NODES_PER_EDGE: usize = 512;
 /// batch at a time, so memory does not grow with the spp.
 pub const SAMPLED_BATCH: u32 = 1024;
 
+/// A receiver closer behind its edge than this many ray epsilons (plus 1e-4 of the
+/// edge's distance) touches it ([`node`]).
+const COINCIDENT: f32 = 16.0;
+
 /// How nodes are placed along the silhouettes (module docs).
 #[derive(Clone, Copy, Debug)]
 pub enum Placement {
@@ -208,8 +212,14 @@ fn node(
     if cos_o <= 0.0 || geom.occluded(o, lit) {
         return None;
     }
-    let receiver = geom
-        .intersect(lit, frame.d)
+    let hit = geom.intersect(lit, frame.d);
+    // A surface touching the edge (a coplanar piece meeting it, a T-junction) is not in
+    // its shadow: a shadow ray to it ends on the edge, within the rays' tolerance, so
+    // moving the edge changes nothing there.
+    if hit.is_some_and(|h| h.t < COINCIDENT * geom.eps + 1e-4 * frame.r_y) {
+        return None;
+    }
+    let receiver = hit
         .filter(|h| matches!(h.kind, SurfaceKind::Hidden { .. }))
         .map(|h| Point {
             flat: h.flat,

@@ -52,7 +52,8 @@ def render(scene: Scene, spp: Optional[int] = None, model: Optional[str] = None,
            hidden_geometry_sampling: Optional[bool] = None,
            bsdf_sampling: Optional[bool] = None, visibility: Optional[str] = None,
            subdivision: Optional[float] = None, max_error: Optional[float] = None,
-           visible_legs: Optional[bool] = None) -> np.ndarray:
+           visible_legs: Optional[bool] = None,
+           boundary_terms: Optional[bool] = None) -> np.ndarray:
     """The scene's transient: a new float32 array in mitransient's layout ``(sy, sx, T)``
     (``(sy, sx, ly, lx, T)`` for exhaustive capture). Same seed, same output, whatever
     the thread count.
@@ -66,13 +67,15 @@ def render(scene: Scene, spp: Optional[int] = None, model: Optional[str] = None,
     ``subdivision`` (tri3) the sub-triangle threshold; ``max_error`` (auto) the relative
     error the chosen model may leave; ``visible_legs`` test the laser -> laser spot and
     sensor point -> detector lines for occlusion by hidden objects (default True, as
-    mitransient: a blocked measurement records 0); False when you know they are clear.
+    mitransient: a blocked measurement records 0); False when you know they are clear;
+    ``boundary_terms`` is :func:`grad`'s (a render is the same with or without it).
     Render, grad, fit and the CLI refuse the same combinations with the same message."""
     return _render(scene, spp=spp, model=model, seed=seed, threads=threads,
                    max_depth=max_depth, laser_sampling=laser_sampling,
                    hidden_geometry_sampling=hidden_geometry_sampling,
                    bsdf_sampling=bsdf_sampling, visibility=visibility,
-                   subdivision=subdivision, max_error=max_error, visible_legs=visible_legs)
+                   subdivision=subdivision, max_error=max_error, visible_legs=visible_legs,
+                   boundary_terms=boundary_terms)
 
 
 def grad(scene: Scene, adjoint: Optional[npt.ArrayLike] = None, spp: Optional[int] = None,

@@ -86,6 +86,7 @@ def render(
     hidden_geometry_sampling: Optional[bool] = None,
     bsdf_sampling: Optional[bool] = None,
     visible_legs: Optional[bool] = None,
+    boundary_terms: Optional[bool] = None,
 ) -> npt.NDArray[np.float32]:
     """The scene's transient (float32, mitransient's layout); options left at None take
     the scene's value."""

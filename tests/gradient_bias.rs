@@ -364,3 +364,44 @@ fn coplanar_pieces_touching_an_edge_cast_no_shadow() {
         "boundary part {worst:e} vs {largest:e}"
     );
 }
+
+/// `umbra gradcheck` on a scene where one object shadows another: finite differences at
+/// fixed random numbers see the interior derivative, which it compares (and passes), and
+/// the boundary terms are printed in their own, non-zero, column.
+#[test]
+fn gradcheck_compares_the_interior_and_prints_the_boundary_terms() {
+    let dir = tmp_dir("gradcheck-boundary");
+    let path = spec(&[PLATE, OCCLUDER], &[]).write(&dir);
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_umbra"))
+        .args([
+            "gradcheck",
+            path.to_str().unwrap(),
+            "--model",
+            "mc3",
+            "--spp",
+            "256",
+        ])
+        .args(["--params", "3", "--h", "1e-4"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.contains("| parameter | adjoint (interior) | boundary terms |"),
+        "{text}"
+    );
+    let boundary: Vec<f64> = text
+        .lines()
+        .filter(|l| l.starts_with("| object ") && l.contains("vertex"))
+        .map(|l| l.split('|').nth(3).unwrap().trim().parse().unwrap())
+        .collect();
+    assert!(boundary.iter().any(|&b| b != 0.0), "{text}");
+    assert!(
+        text.contains("The adjoint compared is the interior derivative"),
+        "{text}"
+    );
+}

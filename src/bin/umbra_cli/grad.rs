@@ -132,8 +132,13 @@ pub fn grad(args: GradArgs) -> umbra::Result<()> {
         .map(|v| v * v)
         .sum::<f64>()
         .sqrt();
+    let boundary = if g.boundary {
+        format!("boundary terms from {} edge nodes", g.boundary_nodes)
+    } else {
+        "no boundary terms".to_string()
+    };
     eprintln!(
-        "umbra: loss {value:.6e}, |d/dvertices| {norm:.3e}, d/dalbedo {:?} ({} spp, {:.2} s) -> {}",
+        "umbra: loss {value:.6e}, |d/dvertices| {norm:.3e}, d/dalbedo {:?} ({} spp, {boundary}, {:.2} s) -> {}",
         g.albedo,
         opts.spp,
         t0.elapsed().as_secs_f64(),

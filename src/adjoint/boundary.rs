@@ -191,6 +191,9 @@ impl Boundary {
             return;
         }
         let w = a * value as f64 * node.length as f64;
+        if !w.is_finite() {
+            return;
+        }
         let share = self.bsdf_share(ctx, receiver) as f64;
         let motion = Motion {
             edge: -w,
@@ -263,6 +266,9 @@ impl Boundary {
             return;
         }
         let w = a * value as f64 * node.length as f64 * self.bsdf_share(ctx, &fg) as f64;
+        if !w.is_finite() {
+            return;
+        }
         let motion = Motion {
             edge: w,
             material: 0.0,

@@ -286,22 +286,26 @@ fn boundary_part(s: &Scene, lambda: &[f32], model: Model, spp: u32, seed: u64) -
 
 /// The Monte Carlo models' sampled boundary nodes (systematic over subtended angles, in
 /// batches of 1024) are an unbiased estimate of what tri3's deterministic quadrature
-/// computes; and the result does not depend on the thread count.
+/// computes (confocal: in a single capture the quadrature also steps over the other
+/// wall point's shadow, a discontinuity per measurement it does not refine, which costs
+/// it ~1 % of the boundary part here; the rows above bound its effect on the gradient);
+/// and the result does not depend on the thread count.
 #[test]
 fn sampled_boundary_nodes_agree_with_the_quadrature_and_ignore_threads() {
+    let confocal = spec(&[PLATE, OCCLUDER], &["visibility = \"subtriangle\""]).scene();
     let s = SceneSpec {
         capture: "single",
         ..spec(&[PLATE, OCCLUDER], &["visibility = \"subtriangle\""])
     }
     .scene();
-    let lambda = fixed_adjoint(&s);
-    let quadrature = boundary_part(&s, &lambda, Model::Tri3, 1, 0);
+    let lambda = fixed_adjoint(&confocal);
+    let quadrature = boundary_part(&confocal, &lambda, Model::Tri3, 1, 0);
     let seeds = 8;
     let mut mean = vec![0.0; quadrature.len()];
     for seed in 0..seeds {
         for (m, v) in mean
             .iter_mut()
-            .zip(boundary_part(&s, &lambda, Model::Mc3, 1500, seed))
+            .zip(boundary_part(&confocal, &lambda, Model::Mc3, 1500, seed))
         {
             *m += v / seeds as f64;
         }
@@ -312,6 +316,7 @@ fn sampled_boundary_nodes_agree_with_the_quadrature_and_ignore_threads() {
     println!("sampled (8 seeds x 1500 nodes) vs quadrature: relative difference {rel:.4}");
     assert!(norm(&quadrature) > 0.0);
     assert!(rel < 0.01, "{rel}");
+    let lambda = fixed_adjoint(&s);
     let geom = SceneGeometry::build(&s);
     let opts = RenderOptions {
         model: Model::Path,

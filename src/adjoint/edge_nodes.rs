@@ -5,7 +5,7 @@
 //! Two placements, both deterministic for a seed:
 //!
 //! - [`Placement::Quadrature`] (`tri3`, a noise-free model): a midpoint rule with nodes
-//!   a fixed distance apart along every edge (a quarter of the kernel's width), at most
+//!   a fixed distance apart along every edge (half the kernel's width), at most
 //!   [`MAX_NODES_PER_EDGE`] per edge;
 //! - [`Placement::Sampled`] (`mc3`, `path`): `count` points per wall point, spread over
 //!   the silhouettes by systematic sampling of the edges' subtended angles (Mitsuba 3's
@@ -14,9 +14,9 @@
 //!   gets the same nodes on any thread count). Unbiased; its cost follows the spp like
 //!   the interior term's.
 //!
-//! A node is kept if `y` is seen from `o` (a shadow ray just on the lit side, where the
-//! edge's own faces are not) and in front of the wall. Its receiver is the first hit of
-//! the ray from `o` through `y`, continued just on the lit side.
+//! A node is kept if `y` is seen from `o` and in front of the wall; its receiver is the
+//! first hit beyond `y`. One ray answers both: from `o` through a point just on the lit
+//! side of `y`, where the edge's own faces are not.
 
 use super::edge::EdgePoint;
 use crate::geometry::silhouette::EdgeMesh;
@@ -35,6 +35,10 @@ pub const SAMPLED_BATCH: u32 = 1024;
 /// A receiver closer behind its edge than this many ray epsilons (plus 1e-4 of the
 /// edge's distance) touches it ([`node`]).
 const COINCIDENT: f32 = 16.0;
+
+/// Bisection steps locating a change of what lies behind an edge between two
+/// quadrature nodes ([`quadrature`]).
+const REFINE: u32 = 5;
 
 /// How nodes are placed along the silhouettes (module docs).
 #[derive(Clone, Copy, Debug)]
@@ -148,8 +152,8 @@ impl EdgeSet {
         let sil = self.silhouettes(o);
         let mut nodes = Vec::new();
         let mut place = |e: &Silhouette, s: f32, length: f32| {
-            if let Some(n) = node(geom, o, e, s, length, keep_missing) {
-                nodes.push(n);
+            if let (Some(n), _) = node(geom, o, e, s, keep_missing) {
+                nodes.push(Node { length, ..n });
             }
         };
         match placement {
@@ -157,9 +161,7 @@ impl EdgeSet {
                 for e in &sil {
                     let len = (e.p[1] - e.p[0]).length();
                     let count = ((len / spacing).ceil() as usize).clamp(1, MAX_NODES_PER_EDGE);
-                    for j in 0..count {
-                        place(e, (j as f32 + 0.5) / count as f32, len / count as f32);
-                    }
+                    quadrature(geom, o, e, count, keep_missing, &mut nodes);
                 }
             }
             Placement::Sampled { count, seed } => {
@@ -195,49 +197,131 @@ impl EdgeSet {
     }
 }
 
-/// The node at `s` on silhouette `e` seen from `o`, if `y` is seen from `o`.
+/// What lies behind an edge point, as far as the quadrature's refinement cares: a change
+/// along the edge is a discontinuity of the integrand.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Class {
+    /// Hidden from `o`, behind the wall, or touching its receiver: no node.
+    Hidden,
+    /// Seen, nothing hidden behind.
+    Missing,
+    /// Seen, a hidden receiver of this object at this distance from `o` (m).
+    Receiver(u32, f32),
+}
+
+impl Class {
+    /// Whether the integrand jumps between two neighbouring points of an edge seen at
+    /// distance `r` (a receiver's depth jumping by 2 % of `r` is another surface).
+    fn differs(self, other: Class, r: f32) -> bool {
+        match (self, other) {
+            (Class::Receiver(a, ra), Class::Receiver(b, rb)) => {
+                a != b || (ra - rb).abs() > 0.02 * r
+            }
+            (a, b) => a != b,
+        }
+    }
+}
+
+/// The node at `s` on silhouette `e` seen from `o` (its `length` to be set), if `y` is
+/// seen from `o`, and what lies behind `y`.
 fn node(
     geom: &SceneGeometry,
     o: Vec3,
     e: &Silhouette,
     s: f32,
-    length: f32,
     keep_missing: bool,
-) -> Option<Node> {
+) -> (Option<Node>, Class) {
     let y = e.p[0].lerp(e.p[1], s);
-    let frame = EdgePoint::new(o, y, e.p[1] - e.p[0], e.q)?;
+    let Some(frame) = EdgePoint::new(o, y, e.p[1] - e.p[0], e.q) else {
+        return (None, Class::Hidden);
+    };
     let cos_o = geom.wall_normal.dot(frame.d);
-    // Just on the lit side: the edge's own faces lie on the other.
-    let lit = y + 4.0 * geom.eps * frame.n;
-    if cos_o <= 0.0 || geom.occluded(o, lit) {
-        return None;
+    if cos_o <= 0.0 {
+        return (None, Class::Hidden);
     }
-    let hit = geom.intersect(lit, frame.d);
+    // One ray from o through a point just on the lit side of y: it never meets the edge's
+    // own faces (they lie on the other side of the plane through o and the edge). A hit
+    // before y means y is hidden from o; the first hit beyond is the receiver.
+    let lit = y + 4.0 * geom.eps * frame.n;
+    let to_lit = lit - o;
+    let r_lit = to_lit.length();
+    let hit = geom.intersect(o, to_lit / r_lit);
+    if hit.is_some_and(|h| h.t < r_lit - geom.eps) {
+        return (None, Class::Hidden);
+    }
     // A surface touching the edge (a coplanar piece meeting it, a T-junction) is not in
     // its shadow: a shadow ray to it ends on the edge, within the rays' tolerance, so
     // moving the edge changes nothing there.
-    if hit.is_some_and(|h| h.t < COINCIDENT * geom.eps + 1e-4 * frame.r_y) {
-        return None;
+    if hit.is_some_and(|h| h.t - r_lit < COINCIDENT * geom.eps + 1e-4 * frame.r_y) {
+        return (None, Class::Hidden);
     }
-    let receiver = hit
-        .filter(|h| matches!(h.kind, SurfaceKind::Hidden { .. }))
-        .map(|h| Point {
-            flat: h.flat,
-            bary: h.bary,
-            x: h.p,
-        });
+    let hidden = hit.filter(|h| matches!(h.kind, SurfaceKind::Hidden { .. }));
+    let class = match hidden {
+        Some(h) => Class::Receiver(geom.flat_to_local[h.flat as usize].0, h.t),
+        None => Class::Missing,
+    };
+    let receiver = hidden.map(|h| Point {
+        flat: h.flat,
+        bary: h.bary,
+        x: h.p,
+    });
     if receiver.is_none() && !keep_missing {
-        return None;
+        return (None, class);
     }
-    Some(Node {
+    let node = Node {
         object: e.object,
         ends: e.ends,
         s,
-        length,
+        length: 0.0,
         frame,
         receiver,
         cos_o,
-    })
+    };
+    (Some(node), class)
+}
+
+/// `tri3`'s midpoint rule on one edge, `count` nodes, each standing for the stretch of
+/// edge nearer to it than to its neighbours, except where what lies behind changes
+/// between two neighbours ([`Class`]): there the change is located by bisection
+/// ([`REFINE`] probes) and each node stands for its own side of it.
+fn quadrature(
+    geom: &SceneGeometry,
+    o: Vec3,
+    e: &Silhouette,
+    count: usize,
+    keep_missing: bool,
+    nodes: &mut Vec<Node>,
+) {
+    let len = (e.p[1] - e.p[0]).length();
+    let r = (e.p[0] - o).length();
+    let s_of = |j: usize| (j as f32 + 0.5) / count as f32;
+    let probes: Vec<(Option<Node>, Class)> = (0..count)
+        .map(|j| node(geom, o, e, s_of(j), keep_missing))
+        .collect();
+    // bounds[j]: where node j's stretch starts.
+    let mut bounds: Vec<f32> = (0..=count).map(|j| j as f32 / count as f32).collect();
+    for j in 1..count {
+        let (left, right) = (probes[j - 1].1, probes[j].1);
+        if !left.differs(right, r) {
+            continue;
+        }
+        let (mut lo, mut hi) = (s_of(j - 1), s_of(j));
+        for _ in 0..REFINE {
+            let mid = 0.5 * (lo + hi);
+            if node(geom, o, e, mid, keep_missing).1.differs(left, r) {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
+        }
+        bounds[j] = 0.5 * (lo + hi);
+    }
+    for (j, (n, _)) in probes.into_iter().enumerate() {
+        if let Some(mut n) = n {
+            n.length = (bounds[j + 1] - bounds[j]) * len;
+            nodes.push(n);
+        }
+    }
 }
 
 /// A random stream per wall point, from its coordinates' bits.

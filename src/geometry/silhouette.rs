@@ -120,12 +120,9 @@ impl EdgeMesh {
         // Which side of the plane through `o` and the edge each face lies on (the sign of
         // its third vertex): all on one side leaves the other side open, a contour seen
         // from `o`; faces on both sides close it. Independent of the faces' winding.
-        let sides: Vec<f32> = edge
-            .faces
-            .iter()
-            .map(|&f| self.side_of_view_plane(e, f, o))
-            .collect();
-        sides.iter().all(|&s| s > 0.0) || sides.iter().all(|&s| s < 0.0)
+        let mut sides = edge.faces.iter().map(|&f| self.side_of_view_plane(e, f, o));
+        let first = sides.next().unwrap_or(0.0);
+        first != 0.0 && sides.all(|s| s * first > 0.0)
     }
 
     /// The third vertex of face `f` (the corner not on edge `e`).

@@ -25,9 +25,10 @@
 //!
 //! Supports: `tri3`, `mc3`, `path` (point laser spot), per-object and per-vertex albedo,
 //! box and Gaussian kernels (box: no time-shift term for the Monte Carlo models, so vertex
-//! gradients miss their largest part; a warning says so). Does not: boundary terms of visibility
-//! changes (silhouettes, occlusion between hidden objects): the interior derivative is
-//! biased there.
+//! gradients miss their largest part; a warning says so). Visibility changes (silhouettes,
+//! occlusion between hidden objects) add the boundary terms of [`boundary`] to the
+//! interior derivative, by default, for every shadow of the three-bounce transport; not
+//! yet for `path`'s paths of 5 or more bounces (docs/GRADIENTS.md).
 
 pub mod boundary;
 pub mod check;

@@ -10,7 +10,7 @@
 //!
 //! `∂I_b/∂θ|_bd = − Σ_E ∫_E V(o, y) F_b(x) V(x, o') J (∂y/∂θ − (r_y/r_x) ∂x_R/∂θ)·n dℓ(y)`
 //!
-//! over the silhouette edges `E` seen from `o` ([`EdgeMesh::silhouettes`]), with `x` the
+//! over the silhouette edges `E` seen from `o` (`EdgeMesh::silhouettes`), with `x` the
 //! receiver point behind the edge point `y` (first hit of the ray from `o` through `y`,
 //! just on the lit side), `n` the edge's normal across the view ray toward the lit side,
 //! `J = sin φ r_x² / (r_y² cos θ_x)` the receiver area per edge length and normal

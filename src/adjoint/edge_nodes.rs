@@ -7,7 +7,7 @@
 //! - [`Placement::Quadrature`] (`tri3`, a noise-free model): a midpoint rule with nodes
 //!   a fixed distance apart along every edge (half the kernel's width), at most
 //!   [`MAX_NODES_PER_EDGE`] per edge, refined by bisection where what lies behind the
-//!   edge changes between two nodes ([`quadrature`]);
+//!   edge changes between two nodes (`quadrature`);
 //! - [`Placement::Sampled`] (`mc3`, `path`): `count` points per wall point, spread over
 //!   the silhouettes by systematic sampling of the edges' subtended angles (Mitsuba 3's
 //!   primary-silhouette weight), uniform in length within an edge, one random offset

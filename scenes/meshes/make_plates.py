@@ -15,6 +15,8 @@ import os
 
 import numpy as np
 
+from make_meshes import write_obj  # the same OBJ writer as the other study meshes
+
 
 def grid(width, height, nx, ny, fold_deg=0.0):
     u = np.linspace(-width / 2, width / 2, nx + 1)
@@ -32,13 +34,6 @@ def grid(width, height, nx, ny, fold_deg=0.0):
             # Winding (v1 - v0) x (v2 - v0) along -z: front faces towards the wall.
             faces += [(a0, d0, c0), (a0, c0, b0)]
     return verts, np.array(faces)
-
-
-def write_obj(path, v, f, header):
-    with open(path, "w") as fh:
-        fh.write("".join(f"# {line}\n" for line in header))
-        fh.writelines(f"v {x:.6f} {y:.6f} {z:.6f}\n" for x, y, z in v)
-        fh.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in f)
 
 
 def main():

@@ -70,9 +70,9 @@ const NODE_SPACING: f32 = 0.5;
 pub struct Boundary {
     edges: EdgeSet,
     placement: Placement,
-    /// `path`: the continuation from the sensor point mixes area and BSDF sampling
-    /// (`(c_bsdf, c_hg)`), whose points move differently ([`Boundary::measurement`]).
-    mixture: Option<(f32, f32)>,
+    /// `path` with BSDF sampling: its continuation from the sensor point mixes area and
+    /// BSDF sampling, whose points move differently ([`Boundary::measurement`]).
+    path_mixture: bool,
 }
 
 /// Per-object vertex gradients (the scatter's target).
@@ -95,14 +95,10 @@ impl Boundary {
                 seed: opts.seed,
             },
         };
-        let tech = &scene.render.techniques;
-        let mixture = (opts.model == Model::Path)
-            .then(|| crate::transport::path::technique_probabilities(tech, true))
-            .filter(|&(c_bsdf, _)| c_bsdf > 0.0);
         Boundary {
             edges: EdgeSet::new(scene),
             placement,
-            mixture,
+            path_mixture: opts.model == Model::Path && scene.render.techniques.bsdf_sampling,
         }
     }
 
@@ -125,7 +121,7 @@ impl Boundary {
         grad: &mut VertexGrad,
     ) {
         let confocal = ctx.x_l == ctx.x_s;
-        let keep_missing = self.mixture.is_some();
+        let keep_missing = self.path_mixture;
         let batches = self.placement.batches();
         for (slot, o, other) in [(0, ctx.x_l, ctx.x_s), (1, ctx.x_s, ctx.x_l)] {
             if slot == 1 && confocal {
@@ -163,7 +159,7 @@ impl Boundary {
             if let Some(receiver) = &node.receiver {
                 self.background(scene, ctx, film, adjoint, node, receiver, other, grad);
             }
-            if self.mixture.is_some() && seen_from_sensor {
+            if self.path_mixture && seen_from_sensor {
                 self.foreground(scene, ctx, film, adjoint, node, other, grad);
             }
         }
@@ -186,18 +182,10 @@ impl Boundary {
         other: Vec3,
         grad: &mut VertexGrad,
     ) {
-        let o = node.frame.o;
-        let Some((value, opl)) = integrand(ctx, receiver, node, o, other) else {
+        let Some(w) = weight(ctx, film, adjoint, receiver, node, other) else {
             return;
         };
-        let (a, _) = film.adjoint(opl, adjoint);
-        if a == 0.0 || (other != o && ctx.geom.occluded(receiver.x, other)) {
-            return;
-        }
-        let w = a * value as f64 * node.length as f64;
-        if !w.is_finite() {
-            return;
-        }
+        let o = node.frame.o;
         let share = self.bsdf_share(ctx, receiver) as f64;
         let motion = Motion {
             edge: -w,
@@ -207,27 +195,11 @@ impl Boundary {
         scatter(scene, ctx, node, Some(receiver), motion, grad);
     }
 
-    /// `w_bsdf`: the share of `path`'s continuation from the sensor point that reaches
-    /// `p` by BSDF sampling (balance heuristic; 0 for the other models).
+    /// `w_bsdf` of `path`'s continuation from the sensor point at `p` (0 for the other
+    /// models).
     fn bsdf_share(&self, ctx: &MeasurementCtx, p: &Point) -> f32 {
-        let Some((c_bsdf, c_hg)) = self.mixture else {
-            return 0.0;
-        };
-        let geom = ctx.geom;
-        let to = p.x - ctx.x_s;
-        let d2 = to.length_squared();
-        let d = to / d2.sqrt();
-        let cos_y = geom.hidden[p.flat as usize].n.dot(d).abs();
-        let p_bsdf = ctx.n_w.dot(d).max(0.0) * FRAC_1_PI * cos_y / d2;
-        let dist = if ctx.scene.render.techniques.hidden_geometry_includes_wall {
-            &geom.hidden_and_wall_area
-        } else {
-            &geom.hidden_area
-        };
-        let p_hg = dist.prob(p.flat) / geom.hidden_area_of(p.flat);
-        let q = c_bsdf * p_bsdf + c_hg * p_hg;
-        if q > 0.0 {
-            c_bsdf * p_bsdf / q
+        if self.path_mixture {
+            crate::transport::path::bsdf_share_from_sensor(ctx, p.x, p.flat)
         } else {
             0.0
         }
@@ -262,19 +234,11 @@ impl Boundary {
             bary: hit.bary,
             x: hit.p,
         };
-        let Some((value, opl)) = integrand(ctx, &fg, node, f.o, other) else {
+        let Some(w) = weight(ctx, film, adjoint, &fg, node, other) else {
             return;
         };
-        let (a, _) = film.adjoint(opl, adjoint);
-        if a == 0.0 || (other != f.o && ctx.geom.occluded(fg.x, other)) {
-            return;
-        }
-        let w = a * value as f64 * node.length as f64 * self.bsdf_share(ctx, &fg) as f64;
-        if !w.is_finite() {
-            return;
-        }
         let motion = Motion {
-            edge: w,
+            edge: w * self.bsdf_share(ctx, &fg) as f64,
             material: 0.0,
             along_sensor_ray: 0.0,
         };
@@ -292,16 +256,31 @@ struct Motion {
     along_sensor_ray: f64,
 }
 
-/// `F_b J / k_b` at the hidden point `p` behind (or at) the node, for the wall points `o`
-/// (the shadow's) and `other`, and `p`'s OPL; `None` where `p` cannot scatter between
-/// them.
-fn integrand(
+/// `Σ_b δH_b F_b J dℓ` of the node for the hidden point `p` (its receiver, or the
+/// occluder at the edge), seen from the node's wall point `o` and lit from `other`
+/// (traced unless the two coincide); `None` where it adds nothing.
+fn weight(
     ctx: &MeasurementCtx,
+    film: &Film,
+    adjoint: &[f32],
     p: &Point,
     node: &Node,
-    o: Vec3,
     other: Vec3,
-) -> Option<(f32, f32)> {
+) -> Option<f64> {
+    let (value, opl) = integrand(ctx, p, node, other)?;
+    let (a, _) = film.adjoint(opl, adjoint);
+    if a == 0.0 || (other != node.frame.o && ctx.geom.occluded(p.x, other)) {
+        return None;
+    }
+    let w = a * value as f64 * node.length as f64;
+    w.is_finite().then_some(w)
+}
+
+/// `F_b J / k_b` at the hidden point `p` behind (or at) the node, for the node's wall
+/// point `o` (the shadow's) and `other`, and `p`'s OPL; `None` where `p` cannot scatter
+/// between them.
+fn integrand(ctx: &MeasurementCtx, p: &Point, node: &Node, other: Vec3) -> Option<(f32, f32)> {
+    let o = node.frame.o;
     let tri = &ctx.geom.hidden[p.flat as usize];
     if tri.retro {
         return None;

@@ -149,8 +149,12 @@ pub fn pick_params(scene: &Scene, per_object: usize, seed: u64) -> Vec<Param> {
     ps
 }
 
-/// The adjoint gradient and the target of the check.
-pub fn setup(scene: &Scene, opts: &RenderOptions) -> Result<(Vec<f32>, Gradient, SceneGeometry)> {
+/// The target of the check, the adjoint histogram at the scene, the gradient and the
+/// geometry the finite differences freeze their sampling at.
+pub fn setup(
+    scene: &Scene,
+    opts: &RenderOptions,
+) -> Result<(Vec<f32>, Vec<f32>, Gradient, SceneGeometry)> {
     let base = SceneGeometry::build(scene);
     let mut moved = scene.clone();
     for o in &mut moved.objects {
@@ -172,21 +176,16 @@ pub fn setup(scene: &Scene, opts: &RenderOptions) -> Result<(Vec<f32>, Gradient,
     let bins = scene.film.temporal_bins as usize;
     let (_, adjoint) = Loss::L2.evaluate(&h0_32, &target, bins)?;
     let g = gradient(scene, &base, opts, &adjoint, None)?;
-    Ok((target, g, base))
+    Ok((target, adjoint, g, base))
 }
 
 /// Compares the adjoint with central differences at steps `hs` (vertex steps in m;
 /// albedo steps are 30x larger, the albedo's scale being ~1 against a mesh's ~0.03 m).
 pub fn run(scene: &Scene, opts: &RenderOptions, params: &[Param], hs: &[f64]) -> Result<Vec<Row>> {
-    let (target, full, base) = setup(scene, opts)?;
-    let mut interior_scene = scene.clone();
-    interior_scene.render.boundary_terms = false;
+    let (target, adjoint, full, base) = setup(scene, opts)?;
     let g = if full.boundary {
-        let h0: Vec<f32> = primal(scene, &base, opts)?
-            .iter()
-            .map(|&v| v as f32)
-            .collect();
-        let (_, adjoint) = Loss::L2.evaluate(&h0, &target, scene.film.temporal_bins as usize)?;
+        let mut interior_scene = scene.clone();
+        interior_scene.render.boundary_terms = false;
         gradient(&interior_scene, &base, opts, &adjoint, None)?
     } else {
         full.clone()

@@ -230,12 +230,7 @@ pub fn gradient(
         truncated += part.truncated;
         nodes += part.boundary_nodes;
     }
-    let mut g = scatter(scene, geom, &tri_grad);
-    for (acc, b) in g.vertices.iter_mut().zip(&vertex_grad) {
-        for (a, b) in acc.iter_mut().zip(b) {
-            (0..3).for_each(|k| a[k] += b[k]);
-        }
-    }
+    let mut g = scatter(scene, geom, &tri_grad, vertex_grad);
     (g.contributions, g.truncated) = (contributions, truncated);
     g.boundary = edges.is_some();
     g.boundary_nodes = nodes;
@@ -270,18 +265,19 @@ pub fn boundary_terms_apply(scene: &Scene, opts: &RenderOptions) -> bool {
 }
 
 /// Chains per-triangle local gradients (corners, corner albedos) to the objects'
-/// vertices and albedos.
-fn scatter(scene: &Scene, geom: &SceneGeometry, tri_grad: &[[f64; TRI_PARAMS]]) -> Gradient {
+/// vertices and albedos, on top of per-vertex gradients `vertices` (the boundary terms).
+fn scatter(
+    scene: &Scene,
+    geom: &SceneGeometry,
+    tri_grad: &[[f64; TRI_PARAMS]],
+    vertices: boundary::VertexGrad,
+) -> Gradient {
     let mut g = Gradient {
         contributions: 0,
         truncated: 0,
         boundary: false,
         boundary_nodes: 0,
-        vertices: scene
-            .objects
-            .iter()
-            .map(|o| vec![[0.0; 3]; o.mesh.positions.len()])
-            .collect(),
+        vertices,
         albedo: vec![0.0; scene.objects.len()],
         vertex_albedo: scene
             .objects

@@ -313,11 +313,9 @@ pub fn grad_timing(scene: &Scene, model: Model, spp: u32, reps: usize) -> Result
         spp,
         ..RenderOptions::from_scene(scene)
     };
-    let (target, _, _) = check::setup(scene, &opts)?;
+    // The check's adjoint (L2 against the moved scene); setup's gradient is the warm-up.
+    let (_, adj, ..) = check::setup(scene, &opts)?;
     let r = Renderer::new(scene, &geom, &opts)?;
-    let primal = r.render(None)?;
-    let (_, adj) = crate::adjoint::Loss::L2.evaluate(&primal.data, &target, primal.bins())?;
-    gradient(scene, &geom, &opts, &adj, None)?;
     let mut interior_scene = scene.clone();
     interior_scene.render.boundary_terms = false;
     let (mut fw, mut ad, mut int) = (Vec::new(), Vec::new(), Vec::new());

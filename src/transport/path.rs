@@ -51,8 +51,9 @@
 use super::mc3::TriParams;
 use super::{sample_spot, Contribution, HiddenGrad, MeasurementCtx, PathVertex, Sink};
 use crate::adjoint::dual::{self, Dual, Real, V3};
+use crate::geometry::sampling::AreaDistribution;
 use crate::geometry::sampling::{cosine_dir, cosine_hemisphere, ONE_MINUS_EPS};
-use crate::geometry::SurfaceKind;
+use crate::geometry::{SceneGeometry, SurfaceKind};
 use crate::rng::Sampler;
 use crate::scene::Techniques;
 use glam::Vec3;
@@ -102,7 +103,7 @@ pub const BSDF_SHARE_AT_WALL: f32 = 0.1;
 pub const BSDF_SHARE_AT_HIDDEN: f32 = 0.5;
 
 /// `(c_bsdf, c_hg)`: one-sample MIS probabilities of the two continuation techniques.
-pub(crate) fn technique_probabilities(tech: &Techniques, on_wall: bool) -> (f32, f32) {
+fn technique_probabilities(tech: &Techniques, on_wall: bool) -> (f32, f32) {
     match (tech.bsdf_sampling, tech.hidden_geometry_sampling) {
         (true, true) => {
             let c = if on_wall {
@@ -114,6 +115,45 @@ pub(crate) fn technique_probabilities(tech: &Techniques, on_wall: bool) -> (f32,
         }
         (true, false) => (1.0, 0.0),
         _ => (0.0, 1.0),
+    }
+}
+
+/// What hidden-geometry sampling draws from: the hidden surfaces, and the wall with
+/// `hidden_geometry_includes_wall`.
+fn hidden_geometry_distribution<'a>(
+    geom: &'a SceneGeometry,
+    tech: &Techniques,
+) -> &'a AreaDistribution {
+    if tech.hidden_geometry_includes_wall {
+        &geom.hidden_and_wall_area
+    } else {
+        &geom.hidden_area
+    }
+}
+
+/// `w_bsdf`: the balance-heuristic share of the continuation from the sensor point that
+/// reaches hidden point `y` (on hidden triangle `flat`) by BSDF sampling: the same
+/// mixture density [`continuation`] divides by. 0 when BSDF sampling is off. The
+/// visibility boundary terms (`adjoint::boundary`) weight their two forms by it.
+pub(crate) fn bsdf_share_from_sensor(ctx: &MeasurementCtx, y: Vec3, flat: u32) -> f32 {
+    let (geom, tech) = (ctx.geom, &ctx.scene.render.techniques);
+    let techniques = technique_probabilities(tech, true);
+    if techniques.0 == 0.0 {
+        return 0.0;
+    }
+    let p_hg = hidden_geometry_distribution(geom, tech).prob(flat) / geom.hidden_area_of(flat);
+    let x_s = Surf {
+        p: ctx.x_s.to_array(),
+        n_side: ctx.n_w.to_array(),
+        f: ctx.f_wall,
+    };
+    let n_y = geom.hidden[flat as usize].n.to_array();
+    let (_, _, q) = continuation(&x_s, y.to_array(), n_y, techniques, p_hg);
+    let from_bsdf = q - techniques.1 * p_hg;
+    if q > 0.0 && from_bsdf > 0.0 {
+        from_bsdf / q
+    } else {
+        0.0
     }
 }
 
@@ -219,11 +259,7 @@ pub fn sample<S: Sink>(
     } else {
         0.0
     };
-    let hg_dist = if tech.hidden_geometry_includes_wall {
-        &geom.hidden_and_wall_area
-    } else {
-        &geom.hidden_area
-    };
+    let hg_dist = hidden_geometry_distribution(geom, tech);
     let n_hidden = geom.hidden.len() as u32;
     // Hidden-geometry sampling's area density at a point of a wall triangle.
     let wall_pdf = |k: u32| {

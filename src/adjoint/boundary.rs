@@ -50,9 +50,11 @@
 //! (`visible_legs` is a step in θ: no derivative), retroreflective receivers. A mesh seam
 //! (two copies of a vertex) sends an edge's share to the copies of the edge's first face.
 
+use super::boundary_paths::Longer;
 use super::edge_nodes::{EdgeSet, Node, Placement, Point, ViewCache};
 use crate::film::Film;
 use crate::geometry::SurfaceKind;
+use crate::rng::Sampler;
 use crate::scene::{KernelSpec, Model, Scene};
 use crate::transport::{MeasurementCtx, RenderOptions};
 use glam::Vec3;
@@ -73,6 +75,8 @@ pub struct Boundary {
     /// `path` with BSDF sampling: its continuation from the sensor point mixes area and
     /// BSDF sampling, whose points move differently ([`Boundary::measurement`]).
     path_mixture: bool,
+    /// `path` with paths of 4 bounces or more ([`super::boundary_paths`]).
+    longer: Option<Longer>,
 }
 
 /// Per-object vertex gradients (the scatter's target).
@@ -99,22 +103,27 @@ impl Boundary {
             edges: EdgeSet::new(scene),
             placement,
             path_mixture: opts.model == Model::Path && scene.render.techniques.bsdf_sampling,
+            longer: Longer::new(scene, opts),
         }
     }
 
-    /// Whether the scene's measurements can have a three-bounce boundary term at all:
-    /// `false` when the path-length filter excludes three-bounce paths.
-    pub fn applies(scene: &Scene) -> bool {
-        scene.render.filter_bounces.is_none_or(|f| f == 3)
+    /// Whether the scene's measurements can have a boundary term at all: `false` when
+    /// the path-length filter keeps only paths `model` does not have.
+    pub fn applies(scene: &Scene, model: Model) -> bool {
+        let r = &scene.render;
+        r.filter_bounces
+            .is_none_or(|f| f == 3 || (model == Model::Path && f > 3 && f <= r.max_bounces))
     }
 
-    /// Adds the boundary term of measurement `ctx` (adjoint histogram `adjoint`) to
+    /// Adds the boundary term of measurement `m` (`ctx`, adjoint histogram `adjoint`) to
     /// `grad`: the shadows cast from the laser spot and, unless the capture is confocal,
-    /// from the sensor point.
+    /// from the sensor point; for `path`, also those of its longer paths.
+    #[allow(clippy::too_many_arguments)]
     pub fn measurement(
         &self,
         scene: &Scene,
         ctx: &MeasurementCtx,
+        m: usize,
         film: &Film,
         adjoint: &[f32],
         views: &mut ViewCache,
@@ -132,12 +141,21 @@ impl Boundary {
                     self.edges
                         .nodes(ctx.geom, o, self.placement, batch, keep_missing)
                 });
-                self.evaluate(scene, ctx, film, adjoint, &nodes, o, other, grad);
+                let view = View {
+                    o,
+                    other,
+                    m,
+                    first: batch * super::edge_nodes::SAMPLED_BATCH,
+                };
+                self.evaluate(scene, ctx, film, adjoint, &nodes, view, grad);
             }
+        }
+        if let Some(longer) = &self.longer {
+            longer.hidden_legs(scene, ctx, film, adjoint, &self.edges, m, grad);
         }
     }
 
-    /// The terms of `nodes`, seen from `o`.
+    /// The terms of `nodes`, seen from `view.o`.
     #[allow(clippy::too_many_arguments)]
     fn evaluate(
         &self,
@@ -146,21 +164,31 @@ impl Boundary {
         film: &Film,
         adjoint: &[f32],
         nodes: &[Node],
-        o: Vec3,
-        other: Vec3,
+        view: View,
         grad: &mut VertexGrad,
     ) {
+        let (o, other) = (view.o, view.other);
         // Whether a `path` continuation from the sensor point that BSDF-samples the
         // receiver sees this shadow: a shadow cast from x_s is then a change of the
         // first surface hit (foreground minus background, below); one cast from x_l
         // falls on a point that slides along its ray from x_s.
         let seen_from_sensor = o == ctx.x_s;
-        for node in nodes {
+        for (j, node) in nodes.iter().enumerate() {
+            // The longer paths' walks from this node (module `boundary_paths`).
+            let mut walks = self.longer.as_ref().map(|l| {
+                let slot = if o == ctx.x_l { 0 } else { 1 };
+                (l, l.node_sampler(view.m, slot, view.first + j as u32))
+            });
             if let Some(receiver) = &node.receiver {
-                self.background(scene, ctx, film, adjoint, node, receiver, other, grad);
+                self.background(
+                    scene, ctx, film, adjoint, node, receiver, other, &mut walks, grad,
+                );
+                if let (Some((l, sampler)), true) = (&mut walks, o == ctx.x_l) {
+                    l.last_leg(scene, ctx, film, adjoint, receiver, node, sampler, grad);
+                }
             }
             if self.path_mixture && seen_from_sensor {
-                self.foreground(scene, ctx, film, adjoint, node, other, grad);
+                self.foreground(scene, ctx, film, adjoint, node, other, &mut walks, grad);
             }
         }
     }
@@ -180,9 +208,10 @@ impl Boundary {
         node: &Node,
         receiver: &Point,
         other: Vec3,
+        walks: &mut Walks,
         grad: &mut VertexGrad,
     ) {
-        let Some(w) = weight(ctx, film, adjoint, receiver, node, other) else {
+        let Some(w) = weight(ctx, film, adjoint, receiver, node, other, walks) else {
             return;
         };
         let o = node.frame.o;
@@ -219,6 +248,7 @@ impl Boundary {
         adjoint: &[f32],
         node: &Node,
         other: Vec3,
+        walks: &mut Walks,
         grad: &mut VertexGrad,
     ) {
         let f = &node.frame;
@@ -234,7 +264,7 @@ impl Boundary {
             bary: hit.bary,
             x: hit.p,
         };
-        let Some(w) = weight(ctx, film, adjoint, &fg, node, other) else {
+        let Some(w) = weight(ctx, film, adjoint, &fg, node, other, walks) else {
             return;
         };
         let motion = Motion {
@@ -250,15 +280,40 @@ impl Boundary {
 /// `(∂y/∂θ)·n`), with the receiver's material point (`material` times
 /// `−(r_y/r_x)(∂x_R/∂θ)·n`), and with the receiver's point on its ray from the sensor
 /// point (`along_sensor_ray`, the same with that point's velocity).
-struct Motion {
+pub(super) struct Motion {
     edge: f64,
     material: f64,
     along_sensor_ray: f64,
 }
 
+impl Motion {
+    /// The edge's motion alone.
+    pub(super) fn edge(edge: f64) -> Motion {
+        Motion {
+            edge,
+            material: 0.0,
+            along_sensor_ray: 0.0,
+        }
+    }
+}
+
+/// A view's wall point `o`, the other wall point of the measurement, the measurement, and
+/// the index of the view's first node (for the longer paths' random streams).
+#[derive(Clone, Copy)]
+struct View {
+    o: Vec3,
+    other: Vec3,
+    m: usize,
+    first: u32,
+}
+
+/// `path`'s longer paths, and the random numbers of one node's walks.
+type Walks<'a> = Option<(&'a Longer, Sampler)>;
+
 /// `Σ_b δH_b F_b J dℓ` of the node for the hidden point `p` (its receiver, or the
 /// occluder at the edge), seen from the node's wall point `o` and lit from `other`
-/// (traced unless the two coincide); `None` where it adds nothing.
+/// (traced unless the two coincide); seen from the sensor point, `path`'s longer paths
+/// through `p` too (`walks`). `None` where it adds nothing.
 fn weight(
     ctx: &MeasurementCtx,
     film: &Film,
@@ -266,14 +321,23 @@ fn weight(
     p: &Point,
     node: &Node,
     other: Vec3,
+    walks: &mut Walks,
 ) -> Option<f64> {
-    let (value, opl) = integrand(ctx, p, node, other)?;
-    let (a, _) = film.adjoint(opl, adjoint);
-    if a == 0.0 || (other != node.frame.o && ctx.geom.occluded(p.x, other)) {
-        return None;
-    }
-    let w = a * value as f64 * node.length as f64;
-    w.is_finite().then_some(w)
+    let direct = integrand(ctx, p, node, other).map_or(0.0, |(value, opl)| {
+        let (a, _) = film.adjoint(opl, adjoint);
+        if a == 0.0 || (other != node.frame.o && ctx.geom.occluded(p.x, other)) {
+            return 0.0;
+        }
+        a * value as f64 * node.length as f64
+    });
+    let longer = match walks {
+        Some((l, sampler)) if node.frame.o == ctx.x_s => {
+            l.first_leg(ctx, film, adjoint, p, node, sampler)
+        }
+        _ => 0.0,
+    };
+    let w = direct + longer;
+    (w != 0.0 && w.is_finite()).then_some(w)
 }
 
 /// `F_b J / k_b` at the hidden point `p` behind (or at) the node, for the node's wall
@@ -282,7 +346,7 @@ fn weight(
 fn integrand(ctx: &MeasurementCtx, p: &Point, node: &Node, other: Vec3) -> Option<(f32, f32)> {
     let o = node.frame.o;
     let tri = &ctx.geom.hidden[p.flat as usize];
-    if tri.retro {
+    if tri.retro || ctx.scene.render.filter_bounces.is_some_and(|f| f != 3) {
         return None;
     }
     let (to_o, to_other) = (o - p.x, other - p.x);
@@ -316,7 +380,7 @@ fn integrand(ctx: &MeasurementCtx, p: &Point, node: &Node, other: Vec3) -> Optio
 /// the receiver's corners (`d_s` the ray from the sensor point, `n_x` the receiver's
 /// normal: a point on a fixed ray moves by `d_s (n_x·v)/(n_x·d_s)` when its plane moves
 /// by `v`).
-fn scatter(
+pub(super) fn scatter(
     scene: &Scene,
     ctx: &MeasurementCtx,
     node: &Node,

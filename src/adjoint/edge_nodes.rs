@@ -153,7 +153,7 @@ impl EdgeSet {
         let sil = self.silhouettes(o);
         let mut nodes = Vec::new();
         let mut place = |e: &Silhouette, s: f32, length: f32| {
-            if let (Some(n), _) = node(geom, o, e, s, keep_missing) {
+            if let (Some(n), _) = node(geom, (o, geom.wall_normal), e, s, keep_missing) {
                 nodes.push(Node { length, ..n });
             }
         };
@@ -162,7 +162,14 @@ impl EdgeSet {
                 for e in &sil {
                     let len = (e.p[1] - e.p[0]).length();
                     let count = ((len / spacing).ceil() as usize).clamp(1, MAX_NODES_PER_EDGE);
-                    quadrature(geom, o, e, count, keep_missing, &mut nodes);
+                    quadrature(
+                        geom,
+                        (o, geom.wall_normal),
+                        e,
+                        count,
+                        keep_missing,
+                        &mut nodes,
+                    );
                 }
             }
             Placement::Sampled { count, seed } => {
@@ -198,6 +205,50 @@ impl EdgeSet {
     }
 }
 
+impl EdgeSet {
+    /// One node seen from the hidden point `o` (its side's normal `n_o`): a silhouette
+    /// edge picked with probability proportional to the angle it subtends at `o` (from
+    /// `u[0]`), a point uniform along it (`u[1]`); its `length` is the edge's length over
+    /// that probability. `None` where the point is not seen from `o`, or has no hidden
+    /// receiver and `keep_missing` is off.
+    pub fn sample_node(
+        &self,
+        geom: &SceneGeometry,
+        (o, n_o): (Vec3, Vec3),
+        u: [f32; 2],
+        keep_missing: bool,
+    ) -> Option<Node> {
+        let eps = 8.0 * geom.eps;
+        // Edges wholly in or behind o's tangent plane (its own face's) cannot be seen.
+        let sil: Vec<Silhouette> = self
+            .silhouettes(o)
+            .into_iter()
+            .filter(|e| e.p.iter().any(|&p| n_o.dot(p - o) > eps))
+            .collect();
+        let total: f32 = sil.iter().map(|e| e.angle).sum();
+        if total.is_nan() || total <= 0.0 {
+            return None;
+        }
+        let mut pick = u[0] * total;
+        let e = sil
+            .iter()
+            .find(|e| {
+                pick -= e.angle;
+                pick < 0.0
+            })
+            .unwrap_or(&sil[sil.len() - 1]);
+        if e.angle.is_nan() || e.angle <= 0.0 {
+            return None;
+        }
+        let len = (e.p[1] - e.p[0]).length();
+        let (n, _) = node(geom, (o, n_o), e, u[1], keep_missing);
+        n.map(|n| Node {
+            length: len * total / e.angle,
+            ..n
+        })
+    }
+}
+
 /// What lies behind an edge point, as far as the quadrature's refinement cares: a change
 /// along the edge is a discontinuity of the integrand.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -227,7 +278,7 @@ impl Class {
 /// seen from `o`, and what lies behind `y`.
 fn node(
     geom: &SceneGeometry,
-    o: Vec3,
+    (o, n_o): (Vec3, Vec3),
     e: &Silhouette,
     s: f32,
     keep_missing: bool,
@@ -236,8 +287,8 @@ fn node(
     let Some(frame) = EdgePoint::new(o, y, e.p[1] - e.p[0], e.q) else {
         return (None, Class::Hidden);
     };
-    let cos_o = geom.wall_normal.dot(frame.d);
-    if cos_o <= 0.0 {
+    let cos_o = n_o.dot(frame.d);
+    if cos_o <= 1e-5 {
         return (None, Class::Hidden);
     }
     // One ray from o through a point just on the lit side of y: it never meets the edge's
@@ -287,7 +338,7 @@ fn node(
 /// ([`REFINE`] probes) and each node stands for its own side of it.
 fn quadrature(
     geom: &SceneGeometry,
-    o: Vec3,
+    (o, n_o): (Vec3, Vec3),
     e: &Silhouette,
     count: usize,
     keep_missing: bool,
@@ -297,7 +348,7 @@ fn quadrature(
     let r = (e.p[0] - o).length();
     let s_of = |j: usize| (j as f32 + 0.5) / count as f32;
     let probes: Vec<(Option<Node>, Class)> = (0..count)
-        .map(|j| node(geom, o, e, s_of(j), keep_missing))
+        .map(|j| node(geom, (o, n_o), e, s_of(j), keep_missing))
         .collect();
     // bounds[j]: where node j's stretch starts.
     let mut bounds: Vec<f32> = (0..=count).map(|j| j as f32 / count as f32).collect();
@@ -309,7 +360,10 @@ fn quadrature(
         let (mut lo, mut hi) = (s_of(j - 1), s_of(j));
         for _ in 0..REFINE {
             let mid = 0.5 * (lo + hi);
-            if node(geom, o, e, mid, keep_missing).1.differs(left, r) {
+            if node(geom, (o, n_o), e, mid, keep_missing)
+                .1
+                .differs(left, r)
+            {
                 hi = mid;
             } else {
                 lo = mid;

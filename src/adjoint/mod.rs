@@ -31,6 +31,8 @@
 //! yet for `path`'s paths of 5 or more bounces (docs/GRADIENTS.md).
 
 pub mod boundary;
+mod boundary_paths;
+mod chain;
 pub mod check;
 pub mod dual;
 pub mod edge;
@@ -154,7 +156,7 @@ pub fn gradient(
                 let ctx = MeasurementCtx::new(scene, geom, &film, m);
                 let adj = &adjoint[m * bins..(m + 1) * bins];
                 if let (Some(b), Some(g), true) = (&edges, &mut vertex_grad, ctx.legs_visible) {
-                    b.measurement(scene, &ctx, &film, adj, &mut views, g);
+                    b.measurement(scene, &ctx, m, &film, adj, &mut views, g);
                 }
                 if !ctx.legs_visible {
                     if let Some(p) = progress {
@@ -260,7 +262,7 @@ fn zero_vertex_grad(scene: &Scene) -> boundary::VertexGrad {
 /// paths kept by the bounce filter.
 pub fn boundary_terms_apply(scene: &Scene, opts: &RenderOptions) -> bool {
     scene.render.boundary_terms
-        && Boundary::applies(scene)
+        && Boundary::applies(scene, opts.model)
         && !(opts.model == Model::Tri3 && opts.visibility == crate::scene::Visibility::None)
 }
 

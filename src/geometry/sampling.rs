@@ -164,6 +164,13 @@ pub fn cosine_hemisphere(n: Vec3, u: [f32; 2]) -> DirectionSample {
 pub fn cosine_dir<R: Real>(n: V3<R>, u: [f32; 2]) -> (V3<R>, f32) {
     let [dx, dy] = concentric_disk(u);
     let dz = (1.0 - dx * dx - dy * dy).max(0.0).sqrt();
+    (frame_direction(n, [dx, dy, dz]), dz)
+}
+
+/// The unit direction with coordinates `local` in the frame about `n` that
+/// [`cosine_dir`] uses (Duff et al. 2017: tangent, bitangent, `n`); generic, so a
+/// direction held fixed in the frame turns with `n`.
+pub fn frame_direction<R: Real>(n: V3<R>, local: [f32; 3]) -> V3<R> {
     let sign: f32 = if n[2].v().is_sign_negative() {
         -1.0
     } else {
@@ -177,8 +184,19 @@ pub fn cosine_dir<R: Real>(n: V3<R>, u: [f32; 2]) -> (V3<R>, f32) {
         n[0].s(-sign),
     ];
     let bt = [b, R::c(sign as f64) + n[1] * n[1] * a, -n[1]];
+    let [dx, dy, dz] = local;
     let d: V3<R> = std::array::from_fn(|k| t[k].s(dx) + bt[k].s(dy) + n[k].s(dz));
-    (dual::scale(d, R::c(1.0) / dual::length(d)), dz)
+    dual::scale(d, R::c(1.0) / dual::length(d))
+}
+
+/// The coordinates of the unit direction `d` in [`frame_direction`]'s frame about `n`.
+pub fn frame_coordinates(n: Vec3, d: Vec3) -> [f32; 3] {
+    let axes = [0, 1, 2].map(|k| {
+        let mut e = [0.0; 3];
+        e[k] = 1.0;
+        Vec3::from_array(frame_direction(n.to_array(), e))
+    });
+    axes.map(|a| d.dot(a))
 }
 
 /// Density of [`cosine_hemisphere`] for direction `dir` (1/sr).

@@ -16,6 +16,7 @@ pub mod budget;
 pub mod gate;
 pub mod mc3;
 pub mod path;
+pub(crate) mod path_step;
 pub mod render;
 pub mod tri3;
 pub mod tri3_exact;

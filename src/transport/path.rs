@@ -49,13 +49,16 @@
 //! derivatives (counted; see `adjoint`). Laser sampling with a point spot only.
 
 use super::mc3::TriParams;
+use super::path_step::{
+    bsdf_share, continuation, hidden_geometry_distribution, step, survival,
+    technique_probabilities, Surf, WalkVertex,
+};
+pub use super::path_step::{BSDF_SHARE_AT_HIDDEN, BSDF_SHARE_AT_WALL};
 use super::{sample_spot, Contribution, HiddenGrad, MeasurementCtx, PathVertex, Sink};
 use crate::adjoint::dual::{self, Dual, Real, V3};
-use crate::geometry::sampling::AreaDistribution;
-use crate::geometry::sampling::{cosine_dir, cosine_hemisphere, ONE_MINUS_EPS};
-use crate::geometry::{SceneGeometry, SurfaceKind};
+use crate::geometry::sampling::cosine_dir;
+use crate::geometry::SurfaceKind;
 use crate::rng::Sampler;
-use crate::scene::Techniques;
 use glam::Vec3;
 use std::f32::consts::{FRAC_1_PI, PI};
 
@@ -76,16 +79,6 @@ pub struct PathScratch {
     pub emitted: u64,
 }
 
-/// A path vertex as the weight formulas see it.
-#[derive(Clone, Copy, Debug)]
-struct Surf<R> {
-    p: V3<R>,
-    /// Normal on the side the path arrived from (the side light leaves from).
-    n_side: V3<R>,
-    /// BRDF `ρ/π` at the vertex.
-    f: R,
-}
-
 /// The vertex the path stands on (primal).
 struct Vertex {
     s: Surf<f32>,
@@ -93,88 +86,13 @@ struct Vertex {
     on_wall: bool,
 }
 
-/// Probability of continuing by BSDF sampling at a relay-wall vertex when both
-/// techniques are on. From the wall, every direction that hits anything hits hidden
-/// geometry (the wall is planar), which hidden-geometry sampling reaches with far less
-/// variance; BSDF sampling keeps a small share for large, close surfaces where area
-/// sampling's `1/d²` is a poor match.
-pub const BSDF_SHARE_AT_WALL: f32 = 0.1;
-/// The same at a hidden vertex, where interreflections need both.
-pub const BSDF_SHARE_AT_HIDDEN: f32 = 0.5;
-
-/// `(c_bsdf, c_hg)`: one-sample MIS probabilities of the two continuation techniques.
-fn technique_probabilities(tech: &Techniques, on_wall: bool) -> (f32, f32) {
-    match (tech.bsdf_sampling, tech.hidden_geometry_sampling) {
-        (true, true) => {
-            let c = if on_wall {
-                BSDF_SHARE_AT_WALL
-            } else {
-                BSDF_SHARE_AT_HIDDEN
-            };
-            (c, 1.0 - c)
-        }
-        (true, false) => (1.0, 0.0),
-        _ => (0.0, 1.0),
-    }
-}
-
-/// What hidden-geometry sampling draws from: the hidden surfaces, and the wall with
-/// `hidden_geometry_includes_wall`.
-fn hidden_geometry_distribution<'a>(
-    geom: &'a SceneGeometry,
-    tech: &Techniques,
-) -> &'a AreaDistribution {
-    if tech.hidden_geometry_includes_wall {
-        &geom.hidden_and_wall_area
-    } else {
-        &geom.hidden_area
-    }
-}
-
-/// `w_bsdf`: the balance-heuristic share of the continuation from the sensor point that
-/// reaches hidden point `y` (on hidden triangle `flat`) by BSDF sampling: the same
-/// mixture density [`continuation`] divides by. 0 when BSDF sampling is off. The
-/// visibility boundary terms (`adjoint::boundary`) weight their two forms by it.
+/// `w_bsdf` of the continuation from the sensor point to hidden point `y` (on hidden
+/// triangle `flat`): the visibility boundary terms (`adjoint::boundary`) weight their two
+/// forms by it.
 pub(crate) fn bsdf_share_from_sensor(ctx: &MeasurementCtx, y: Vec3, flat: u32) -> f32 {
-    let (geom, tech) = (ctx.geom, &ctx.scene.render.techniques);
-    let techniques = technique_probabilities(tech, true);
-    if techniques.0 == 0.0 {
-        return 0.0;
-    }
-    let p_hg = hidden_geometry_distribution(geom, tech).prob(flat) / geom.hidden_area_of(flat);
-    let x_s = Surf {
-        p: ctx.x_s.to_array(),
-        n_side: ctx.n_w.to_array(),
-        f: ctx.f_wall,
-    };
-    let n_y = geom.hidden[flat as usize].n.to_array();
-    let (_, _, q) = continuation(&x_s, y.to_array(), n_y, techniques, p_hg);
-    let from_bsdf = q - techniques.1 * p_hg;
-    if q > 0.0 && from_bsdf > 0.0 {
-        from_bsdf / q
-    } else {
-        0.0
-    }
-}
-
-/// The continuation `x → y`: the throughput factor `f(x) cos θ_x cos θ_y / (d² q(y))`,
-/// the segment's length, and `q` itself (the one-sample MIS mixture's area density;
-/// `p_hg` is hidden-geometry sampling's area density at `y`).
-fn continuation<R: Real>(
-    x: &Surf<R>,
-    y_p: V3<R>,
-    y_n: V3<R>,
-    (c_bsdf, c_hg): (f32, f32),
-    p_hg: R,
-) -> (R, R, R) {
-    let d = dual::sub(y_p, x.p);
-    let d2 = dual::dot(d, d);
-    let dist = d2.sqrt();
-    let cos_x = dual::dot(x.n_side, d) / dist;
-    let cos_y = (dual::dot(y_n, d) / dist).abs();
-    let p_bsdf = cos_x.s(FRAC_1_PI) * cos_y / d2;
-    let q = p_bsdf.s(c_bsdf) + p_hg.s(c_hg);
-    (x.f * cos_x * cos_y / (d2 * q), dist, q)
+    let x_s = WalkVertex::wall(ctx, ctx.x_s);
+    let y = WalkVertex::hidden(ctx.geom, flat, [0.0; 2], y, ctx.x_s);
+    bsdf_share(ctx, &x_s.s, true, &y)
 }
 
 /// Next-event estimation from `y` to the laser spot `x_l`:
@@ -306,78 +224,22 @@ pub fn sample<S: Sink>(
         let u_spot = sampler.next_2d();
         let u_rr = sampler.next_1d();
         let techniques = technique_probabilities(tech, x.on_wall);
-        let (c_bsdf, c_hg) = techniques;
-        let x_p = Vec3::from_array(x.s.p);
-        let x_n = Vec3::from_array(x.s.n_side);
 
         // --- continuation: sample y_j by one of the two techniques -----------------
-        let by_bsdf = u_pick < c_bsdf;
-        let u_dir = [u_pick / c_bsdf.max(f32::MIN_POSITIVE), u_2];
-        let (y_p, y_n, kind, flat, bary, sampled_tri) = if by_bsdf {
-            let ds = cosine_hemisphere(x_n, u_dir);
-            let Some(hit) = geom.intersect(x_p, ds.dir) else {
-                break;
-            };
-            (hit.p, hit.n, hit.kind, hit.flat, hit.bary, None)
-        } else {
-            let u_hg = ((u_pick - c_bsdf) / c_hg).min(ONE_MINUS_EPS);
-            let ts = hg_dist.sample([u_hg, u_2]);
-            let (y, n, kind, flat) = if ts.tri < n_hidden {
-                let tri = &geom.hidden[ts.tri as usize];
-                let (object, t) = geom.flat_to_local[ts.tri as usize];
-                (
-                    tri.point(ts.bary),
-                    tri.n,
-                    SurfaceKind::Hidden { object, tri: t },
-                    ts.tri,
-                )
-            } else {
-                let [a, b, c] = geom.wall_tris[(ts.tri - n_hidden) as usize];
-                let [b1, b2] = ts.bary;
-                let y = (1.0 - b1 - b2) * a + b1 * b + b2 * c;
-                (y, n_w, SurfaceKind::Wall, u32::MAX)
-            };
-            let dir = (y - x_p).normalize();
-            if x_n.dot(dir) <= 0.0 || geom.occluded(x_p, y) {
-                break;
-            }
-            (y, n, kind, flat, ts.bary, Some(ts.tri))
-        };
-        let dir = (y_p - x_p).normalize();
-        if x_n.dot(dir) <= 0.0 || y_n.dot(dir).abs() <= 1e-7 {
+        let Some(st) = step(ctx, &x.s, x.on_wall, [u_pick, u_2]) else {
             break;
-        }
-        let on_wall = kind == SurfaceKind::Wall;
-        // Hidden-geometry sampling's area density at y (0 where it cannot reach y).
-        let p_hg = if !on_wall {
-            hg_dist.prob(flat) / geom.hidden_area_of(flat)
-        } else if tech.hidden_geometry_includes_wall {
-            let k = match sampled_tri {
-                Some(t) => t - n_hidden,
-                None => geom.wall_tri_of(y_p),
-            };
-            wall_pdf(k)
-        } else {
-            0.0
         };
-        let (factor, dist, q) =
-            continuation(&x.s, y_p.to_array(), y_n.to_array(), techniques, p_hg);
-        beta *= factor;
-        opl += dist;
+        let (by_bsdf, u_dir, back, q, p_hg) = (st.by_bsdf, st.u_dir, st.back, st.q, st.p_hg);
+        let (y_p, y_n, kind, flat, bary) = (st.y.p(), st.n, st.kind, st.y.flat, st.y.bary);
+        let on_wall = kind == SurfaceKind::Wall;
+        beta *= st.factor;
+        opl += st.dist;
         let y_vertex = PathVertex {
             p: y_p,
             kind,
             flat,
             bary,
         };
-        // Which side of y light arrives on; a one-sided surface hit from behind is black.
-        let back = y_n.dot(dir) >= 0.0;
-        if on_wall && back {
-            break;
-        }
-        if !on_wall && back && !geom.hidden[flat as usize].two_sided {
-            break;
-        }
 
         // --- the same step in dual numbers (adjoint pass) ---------------------------
         if let Some(rp) = replay.as_mut() {
@@ -524,7 +386,7 @@ pub fn sample<S: Sink>(
 
         // --- Russian roulette before extending past rr_bounces -----------------------
         if j + 2 >= r.rr_bounces {
-            let survive = y.albedo.clamp(0.05, 0.95);
+            let survive = survival(y.albedo);
             if u_rr >= survive {
                 break;
             }

@@ -1,0 +1,138 @@
+//! How the interior derivative moves the vertices of a `path` path, in expectation over
+//! its sampling techniques (issue 18, `notes/boundary-methods.md` §6): the velocities the
+//! boundary terms of longer paths must use for their viewpoint and receiver.
+//!
+//! `path` reaches vertex `y_k` from `y_{k−1}` by one-sample MIS: hidden-geometry sampling
+//! keeps `y_k`'s barycentrics (it moves with its material), BSDF sampling keeps the
+//! direction's coordinates in `y_{k−1}`'s frame (it slides along a ray that starts at the
+//! moving `y_{k−1}` and turns with its normal). The estimator's derivative is linear in
+//! these velocities, so what a boundary term needs is their mean over the technique
+//! choices, the balance weights `w_k` of the two techniques for this path:
+//!
+//! `E[v_k] = (1 − w_k) v_material(y_k) + w_k v_ray(E[v_{k−1}], ṅ_{k−1})`,
+//!
+//! a recursion from the sensor point (fixed) written in dual numbers over the corners of
+//! up to [`PATH_TRIANGLES`] hidden triangles (the last vertices' first: the viewpoint and
+//! receiver of a boundary term come last). Wall vertices do not move with the scene; a
+//! BSDF-sampled one slides along its ray.
+
+use super::boundary::VertexGrad;
+use crate::geometry::sampling::{frame_coordinates, frame_direction};
+use crate::scene::Scene;
+use crate::transport::mc3::TriParams;
+use crate::transport::path::{PathDual, PATH_TRIANGLES};
+use crate::transport::path_step::{bsdf_share, WalkVertex};
+use crate::transport::MeasurementCtx;
+use dual::V3;
+
+use super::dual::{self, Real};
+
+/// How the chain's last vertex moves.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Last {
+    /// As the path's sampling moves it on average (a receiver).
+    Expected,
+    /// Along its ray from the previous vertex (the occluder's point at a silhouette,
+    /// reached by BSDF sampling).
+    Ray,
+}
+
+/// The vertices of a chain in dual numbers over the corners of its triangles.
+pub struct ChainDual {
+    groups: [u32; PATH_TRIANGLES],
+    used: usize,
+    pub points: Vec<V3<PathDual>>,
+}
+
+impl ChainDual {
+    /// `E[v]` of every vertex of `chain` (`chain[0]` the sensor point), [`Last`] for the
+    /// last one.
+    pub fn new(ctx: &MeasurementCtx, chain: &[WalkVertex], last: Last) -> ChainDual {
+        let geom = ctx.geom;
+        let mut groups = [u32::MAX; PATH_TRIANGLES];
+        let mut used = 0;
+        for v in chain.iter().rev() {
+            if !v.on_wall() && used < PATH_TRIANGLES && !groups[..used].contains(&v.flat) {
+                groups[used] = v.flat;
+                used += 1;
+            }
+        }
+        let tri = |flat: u32| -> TriParams<PathDual> {
+            let t = &geom.hidden[flat as usize];
+            match groups[..used].iter().position(|&g| g == flat) {
+                Some(g) => TriParams::variables_at(t, 12 * g),
+                None => {
+                    let c = TriParams::constant(t);
+                    TriParams {
+                        v: c.v.map(|v| v.map(|x| PathDual::c(x as f64))),
+                        albedo: c.albedo.map(|a| PathDual::c(a as f64)),
+                        two_sided: c.two_sided,
+                        retro: c.retro,
+                    }
+                }
+            }
+        };
+        let wall_n: V3<PathDual> = dual::constant(ctx.n_w);
+        let wall_c: V3<PathDual> = dual::constant(ctx.scene.wall.center);
+        let mut points: Vec<V3<PathDual>> = vec![dual::constant(chain[0].p())];
+        let mut normals = vec![wall_n];
+        for k in 1..chain.len() {
+            let (prev, v) = (&chain[k - 1], &chain[k]);
+            let (material, plane_n, plane_p, n_side) = if v.on_wall() {
+                let p = dual::constant(v.p());
+                (p, wall_n, wall_c, wall_n)
+            } else {
+                let t = tri(v.flat);
+                let (n, _) = t.normal_area();
+                let flip = dual::value(n).dot(v.n_side()) < 0.0;
+                let n_side = if flip { n.map(|c| -c) } else { n };
+                (t.point(v.bary), n, t.v[0], n_side)
+            };
+            let w = if k == chain.len() - 1 && last == Last::Ray {
+                1.0
+            } else {
+                bsdf_share(ctx, &prev.s, prev.on_wall(), v)
+            };
+            let point = if w > 0.0 {
+                // The ray from the previous vertex, its direction fixed in that vertex's
+                // frame, met with this vertex's plane.
+                let (x, n_x) = (points[k - 1], normals[k - 1]);
+                let dir = (v.p() - prev.p()).normalize();
+                let d = frame_direction(n_x, frame_coordinates(prev.n_side(), dir));
+                let t = dual::dot(plane_n, dual::sub(plane_p, x)) / dual::dot(plane_n, d);
+                let ray: V3<PathDual> = std::array::from_fn(|i| x[i] + d[i] * t);
+                std::array::from_fn(|i| material[i] + (ray[i] - material[i]).s(w))
+            } else {
+                material
+            };
+            points.push(point);
+            normals.push(n_side);
+        }
+        ChainDual {
+            groups,
+            used,
+            points,
+        }
+    }
+
+    /// Adds `weight · ∂s/∂θ` to the vertices of the chain's triangles.
+    pub fn scatter(
+        &self,
+        scene: &Scene,
+        ctx: &MeasurementCtx,
+        s: &PathDual,
+        weight: f64,
+        grad: &mut VertexGrad,
+    ) {
+        for (g, &flat) in self.groups[..self.used].iter().enumerate() {
+            let (o, t) = ctx.geom.flat_to_local[flat as usize];
+            let corners = scene.objects[o as usize].mesh.triangles[t as usize];
+            for (i, &v) in corners.iter().enumerate() {
+                let g = &s.d[12 * g + 3 * i..12 * g + 3 * i + 3];
+                for (acc, d) in grad[o as usize][v as usize].iter_mut().zip(g) {
+                    *acc += weight * *d as f64;
+                }
+            }
+        }
+    }
+}

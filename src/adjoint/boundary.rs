@@ -175,9 +175,9 @@ impl Boundary {
         let seen_from_sensor = o == ctx.x_s;
         for (j, node) in nodes.iter().enumerate() {
             // The longer paths' walks from this node (module `boundary_paths`).
-            let mut walks = self.longer.as_ref().map(|l| {
+            let mut walks = self.longer.as_ref().and_then(|l| {
                 let slot = if o == ctx.x_l { 0 } else { 1 };
-                (l, l.node_sampler(view.m, slot, view.first + j as u32))
+                Some((l, l.node_sampler(view.m, slot, view.first + j as u32)?))
             });
             if let Some(receiver) = &node.receiver {
                 self.background(
@@ -324,7 +324,7 @@ fn weight(
     walks: &mut Walks,
 ) -> Option<f64> {
     let direct = integrand(ctx, p, node, other).map_or(0.0, |(value, opl)| {
-        let (a, _) = film.adjoint(opl, adjoint);
+        let a = film.adjoint_value(opl, adjoint);
         if a == 0.0 || (other != node.frame.o && ctx.geom.occluded(p.x, other)) {
             return 0.0;
         }

@@ -30,14 +30,13 @@
 //! distinct triangles of a chain (their velocity is dropped, as in `path`'s replay).
 
 use super::boundary::{scatter, Motion, VertexGrad};
-use super::chain::{ChainDual, Last};
+use super::chain::{ChainDual, ChainNum, Last};
 use super::dual::{self, Real};
 use super::edge_nodes::{EdgeSet, Node, Point};
 use crate::film::Film;
 use crate::geometry::SurfaceKind;
 use crate::rng::Sampler;
 use crate::scene::{Model, Scene};
-use crate::transport::path::PathDual;
 use crate::transport::path_step::{bsdf_share, walk, WalkVertex};
 use crate::transport::{MeasurementCtx, RenderOptions};
 use glam::Vec3;
@@ -50,6 +49,13 @@ pub struct Longer {
     /// `path` mixes BSDF sampling in (foreground terms).
     mixture: bool,
 }
+
+/// The longer paths' terms are estimated on one node in `SPLIT` of the three-bounce terms
+/// (each picked with probability `1/SPLIT`, its estimate weighted by `SPLIT`: unbiased)
+/// and by `spp / SPLIT` hidden→hidden walks per measurement: they carry a small share of
+/// the transient, and at one walk per node they made a `path` gradient 2.7–3.3x the
+/// interior-only one (`umbra bench grad`).
+const SPLIT: u32 = 4;
 
 /// Stream of the boundary walks of measurement `m` (`tag` tells the walks apart); far
 /// from the interior samples' streams (`m`).
@@ -64,14 +70,16 @@ impl Longer {
         let longest = r.max_bounces.min(r.filter_bounces.unwrap_or(u32::MAX));
         (opts.model == Model::Path && longest >= 4).then(|| Longer {
             seed: opts.seed,
-            count: opts.spp.max(1),
+            count: opts.spp.max(1).div_ceil(SPLIT),
             mixture: r.techniques.bsdf_sampling,
         })
     }
 
-    /// A sampler for node `index` of the view in `slot` of measurement `m`.
-    pub fn node_sampler(&self, m: usize, slot: u64, index: u32) -> Sampler {
-        Sampler::new(self.seed, stream(m, slot), index)
+    /// A sampler for the walks of node `index` of the view in `slot` of measurement `m`,
+    /// if the node is one of those that estimate the longer paths ([`SPLIT`]).
+    pub fn node_sampler(&self, m: usize, slot: u64, index: u32) -> Option<Sampler> {
+        let mut sampler = Sampler::new(self.seed, stream(m, slot), index);
+        (sampler.next_1d() * (SPLIT as f32) < 1.0).then_some(sampler)
     }
 
     /// Walks from `start` (a hidden point, on the side of the viewpoint) toward the wall
@@ -110,7 +118,7 @@ impl Longer {
                 let Some((g, r_z)) = connect(ctx, z, other) else {
                     return;
                 };
-                let (a, _) = film.adjoint(opl0 + opl + r_z, adjoint);
+                let a = film.adjoint_value(opl0 + opl + r_z, adjoint);
                 if a != 0.0 && !ctx.geom.occluded(z.p(), other) {
                     each(v, a * (beta * z.s.f * g) as f64);
                 }
@@ -148,10 +156,11 @@ impl Longer {
         sum * Self::leg_factor(ctx, node)
     }
 
-    /// `C cos_o sin φ / r_y² dℓ` of a node seen from a wall point (`C = P (ρ_w/π)²`).
+    /// `C cos_o sin φ / r_y² dℓ` of a node seen from a wall point (`C = P (ρ_w/π)²`),
+    /// over the probability [`SPLIT`] of the node's walks.
     fn leg_factor(ctx: &MeasurementCtx, node: &Node) -> f64 {
         let c = ctx.power * ctx.f_wall * ctx.f_wall;
-        (c * node.cos_o * node.frame.area_per_length() * node.length) as f64
+        (c * node.cos_o * node.frame.area_per_length() * node.length) as f64 * SPLIT as f64
     }
 
     /// The last leg's term for a node seen from `x_l` with receiver `p`: the paths from
@@ -175,7 +184,7 @@ impl Longer {
         };
         let factor = Self::leg_factor(ctx, node);
         let rho = node.frame.r_y / (p.x - o).length();
-        let n = dual::constant::<PathDual>(node.frame.n);
+        let n = dual::constant::<ChainNum>(node.frame.n);
         let mut edge = 0.0;
         let mut chain = Vec::with_capacity(8);
         let opl0 = leg_opl(ctx, p.x, o);
@@ -246,7 +255,7 @@ impl Longer {
                         * (beta * a.s.f * node.cos_o * node.frame.area_per_length() * node.length)
                             as f64;
                     let opl_a = ctx.opl_sensor_leg + opl;
-                    let n = dual::constant::<PathDual>(node.frame.n);
+                    let n = dual::constant::<ChainNum>(node.frame.n);
                     if let Some(b) = &node.receiver {
                         let w = prefix
                             * self.suffix(
@@ -265,7 +274,7 @@ impl Longer {
                             let c = ChainDual::new(ctx, &chain, Last::Expected);
                             let rho = node.frame.r_y / (b.x - a.p()).length();
                             let k = chain.len() - 1;
-                            let s: [PathDual; 3] = std::array::from_fn(|i| {
+                            let s: [ChainNum; 3] = std::array::from_fn(|i| {
                                 c.points[k - 1][i].s(1.0 - rho) + c.points[k][i].s(rho)
                             });
                             c.scatter(scene, ctx, &dual::dot(n, s), w, grad);
@@ -337,7 +346,7 @@ impl Longer {
         chain.extend_from_slice(v);
         chain.push(fg_vertex);
         let c = ChainDual::new(ctx, chain, Last::Ray);
-        let n = dual::constant::<PathDual>(f.n);
+        let n = dual::constant::<ChainNum>(f.n);
         c.scatter(
             scene,
             ctx,
@@ -370,7 +379,7 @@ impl Longer {
         let mut sum = 0.0;
         if r.filter_bounces.is_none_or(|f| f == bounces) && bounces <= r.max_bounces {
             if let Some((g, r_l)) = connect(ctx, &start, ctx.x_l) {
-                let (adj, _) = film.adjoint(opl0 + r_l, adjoint);
+                let adj = film.adjoint_value(opl0 + r_l, adjoint);
                 if adj != 0.0 && !ctx.geom.occluded(b.x, ctx.x_l) {
                     sum += adj * (start.s.f * g) as f64;
                 }

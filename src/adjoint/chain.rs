@@ -20,12 +20,15 @@ use super::boundary::VertexGrad;
 use crate::geometry::sampling::{frame_coordinates, frame_direction};
 use crate::scene::Scene;
 use crate::transport::mc3::TriParams;
-use crate::transport::path::{PathDual, PATH_TRIANGLES};
+use crate::transport::path::PATH_TRIANGLES;
 use crate::transport::path_step::{bsdf_share, WalkVertex};
 use crate::transport::MeasurementCtx;
 use dual::V3;
 
 use super::dual::{self, Real};
+
+/// Dual numbers over the corner positions of [`PATH_TRIANGLES`] triangles.
+pub type ChainNum = super::dual::Dual<f32, { 9 * PATH_TRIANGLES }>;
 
 /// How the chain's last vertex moves.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -41,7 +44,7 @@ pub enum Last {
 pub struct ChainDual {
     groups: [u32; PATH_TRIANGLES],
     used: usize,
-    pub points: Vec<V3<PathDual>>,
+    pub points: Vec<V3<ChainNum>>,
 }
 
 impl ChainDual {
@@ -57,24 +60,24 @@ impl ChainDual {
                 used += 1;
             }
         }
-        let tri = |flat: u32| -> TriParams<PathDual> {
+        // Corner positions are variables in their triangle's slots (albedos constants).
+        let tri = |flat: u32| -> TriParams<ChainNum> {
             let t = &geom.hidden[flat as usize];
-            match groups[..used].iter().position(|&g| g == flat) {
-                Some(g) => TriParams::variables_at(t, 12 * g),
-                None => {
-                    let c = TriParams::constant(t);
-                    TriParams {
-                        v: c.v.map(|v| v.map(|x| PathDual::c(x as f64))),
-                        albedo: c.albedo.map(|a| PathDual::c(a as f64)),
-                        two_sided: c.two_sided,
-                        retro: c.retro,
-                    }
-                }
+            let slot = groups[..used].iter().position(|&g| g == flat);
+            let corner = |i: usize, k: usize| match slot {
+                Some(g) => ChainNum::var(t.v[i][k], 9 * g + 3 * i + k),
+                None => ChainNum::c(t.v[i][k] as f64),
+            };
+            TriParams {
+                v: std::array::from_fn(|i| std::array::from_fn(|k| corner(i, k))),
+                albedo: t.albedo.map(|a| ChainNum::c(a as f64)),
+                two_sided: t.two_sided,
+                retro: t.retro,
             }
         };
-        let wall_n: V3<PathDual> = dual::constant(ctx.n_w);
-        let wall_c: V3<PathDual> = dual::constant(ctx.scene.wall.center);
-        let mut points: Vec<V3<PathDual>> = vec![dual::constant(chain[0].p())];
+        let wall_n: V3<ChainNum> = dual::constant(ctx.n_w);
+        let wall_c: V3<ChainNum> = dual::constant(ctx.scene.wall.center);
+        let mut points: Vec<V3<ChainNum>> = vec![dual::constant(chain[0].p())];
         let mut normals = vec![wall_n];
         for k in 1..chain.len() {
             let (prev, v) = (&chain[k - 1], &chain[k]);
@@ -100,7 +103,7 @@ impl ChainDual {
                 let dir = (v.p() - prev.p()).normalize();
                 let d = frame_direction(n_x, frame_coordinates(prev.n_side(), dir));
                 let t = dual::dot(plane_n, dual::sub(plane_p, x)) / dual::dot(plane_n, d);
-                let ray: V3<PathDual> = std::array::from_fn(|i| x[i] + d[i] * t);
+                let ray: V3<ChainNum> = std::array::from_fn(|i| x[i] + d[i] * t);
                 std::array::from_fn(|i| material[i] + (ray[i] - material[i]).s(w))
             } else {
                 material
@@ -120,7 +123,7 @@ impl ChainDual {
         &self,
         scene: &Scene,
         ctx: &MeasurementCtx,
-        s: &PathDual,
+        s: &ChainNum,
         weight: f64,
         grad: &mut VertexGrad,
     ) {
@@ -128,7 +131,7 @@ impl ChainDual {
             let (o, t) = ctx.geom.flat_to_local[flat as usize];
             let corners = scene.objects[o as usize].mesh.triangles[t as usize];
             for (i, &v) in corners.iter().enumerate() {
-                let g = &s.d[12 * g + 3 * i..12 * g + 3 * i + 3];
+                let g = &s.d[9 * g + 3 * i..9 * g + 3 * i + 3];
                 for (acc, d) in grad[o as usize][v as usize].iter_mut().zip(g) {
                     *acc += weight * *d as f64;
                 }

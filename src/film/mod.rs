@@ -68,6 +68,14 @@ impl Film {
         (value, slope)
     }
 
+    /// `Σ_b adj_b K_b(opl)` alone (the first half of [`Film::adjoint`], without the
+    /// derivative's work): what the visibility boundary terms weight by.
+    pub fn adjoint_value(&self, opl: f32, adj: &[f32]) -> f64 {
+        let mut value = 0.0;
+        self.point_bins(opl as f64, 1.0, |b, k| value += adj[b] as f64 * k);
+        value
+    }
+
     /// Adds weight `w` at OPL `opl` into `hist` (length `bins`).
     #[inline]
     pub fn splat(&self, opl: f32, w: f32, hist: &mut [f64]) {

@@ -44,9 +44,9 @@
 //!
 //! Supports: one- and two-sided surfaces, open and closed meshes (boundary edges, contours,
 //! non-manifold edges), per-vertex albedo, all capture types, box and Gaussian kernels.
-//! Does not: paths of 5 or more bounces in `path` (shadows between hidden points, and the
-//! wall legs' shadows on longer paths), a finite
-//! laser spot's penumbra (the spot is taken at its centre), the laser and detector legs
+//! `path`'s paths of 4 or more bounces (shadows between hidden points, and the wall legs'
+//! shadows on longer paths) are `boundary_paths`'s.
+//! Does not: a finite laser spot's penumbra (the spot is taken at its centre), the laser and detector legs
 //! (`visible_legs` is a step in θ: no derivative), retroreflective receivers. A mesh seam
 //! (two copies of a vertex) sends an edge's share to the copies of the edge's first face.
 

@@ -139,3 +139,90 @@ impl ChainDual {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::film::Film;
+    use crate::geometry::mesh::TriMesh;
+    use crate::geometry::SceneGeometry;
+    use crate::scene::toml_format;
+    use glam::Vec3;
+    use std::path::Path;
+
+    /// Two hidden triangles: `A` facing the wall, `B` tilted behind it.
+    const OBJ: &str = "v -0.2 -0.2 0.5\nv 0.2 -0.15 0.55\nv 0.0 0.2 0.45\n\
+                       v -0.3 -0.3 0.8\nv 0.3 -0.2 0.9\nv 0.0 0.3 0.6\nf 1 2 3\nf 4 5 6\n";
+
+    fn scene(obj: &str) -> crate::scene::Scene {
+        let toml = "capture_type = \"confocal\"\n[wall]\nsize = [2.0, 2.0]\n[laser]\n\
+                    origin = [0.3, -0.4, 1.0]\n[scan]\nresolution = [1, 1]\nsize = [0.5, 0.5]\n\
+                    [film]\ntemporal_bins = 64\nbin_width_opl = 0.05\nstart_opl = 0.0\n\
+                    [[objects]]\nfile = \"t.obj\"\ntwo_sided = true\n\
+                    [render]\nmodel = \"path\"\nbsdf_sampling = false\n";
+        let text = obj.to_string();
+        toml_format::parse(toml, Path::new("t.toml"), &|f| {
+            TriMesh::parse_obj(&text, Path::new(f))
+        })
+        .unwrap()
+    }
+
+    /// `x_s → a` (area sampled: `a` moves with its material) `→ b` (on its ray from `a`,
+    /// the direction held in `a`'s frame): the dual velocities of `b` against finite
+    /// differences of that construction, for every corner coordinate of both triangles.
+    #[test]
+    fn ray_velocity_turns_with_the_previous_normal() {
+        let base = scene(OBJ);
+        let (bary_a, bary_b) = ([0.3, 0.3], [0.25, 0.4]);
+        let place = |s: &crate::scene::Scene| {
+            let geom = SceneGeometry::build(s);
+            let (ta, tb) = (&geom.hidden[0], &geom.hidden[1]);
+            let a = ta.point(bary_a);
+            (a, ta.n, tb.v, geom)
+        };
+        let (a, n_a, _, geom) = place(&base);
+        let b0 = geom.hidden[1].point(bary_b);
+        let film = Film::new(&base.film);
+        let ctx = MeasurementCtx::new(&base, &geom, &film, 0);
+        let x_s = WalkVertex::wall(&ctx, ctx.x_s);
+        let va = WalkVertex::hidden(&geom, 0, bary_a, a, ctx.x_s);
+        let vb0 = WalkVertex::hidden(&geom, 1, bary_b, b0, a);
+        let chain = ChainDual::new(&ctx, &[x_s, va, vb0], Last::Ray);
+        // The direction from a to b in a's frame (a's side toward x_s).
+        let side = if n_a.dot(ctx.x_s - a) > 0.0 {
+            n_a
+        } else {
+            -n_a
+        };
+        let local = frame_coordinates(side, (b0 - a).normalize());
+        let h = 1e-3f32;
+        let mut worst = 0.0f32;
+        for (t, v, k) in
+            (0..2).flat_map(|t| (0..3).flat_map(move |v| (0..3).map(move |k| (t, v, k))))
+        {
+            let moved = |d: f32| {
+                let mut s = base.clone();
+                s.objects[0].mesh.positions[3 * t + v][k] += d;
+                let (a, n_a, vb, _) = place(&s);
+                let side = if n_a.dot(ctx.x_s - a) > 0.0 {
+                    n_a
+                } else {
+                    -n_a
+                };
+                let w = Vec3::from_array(frame_direction(side.to_array(), local));
+                let n_b = (vb[1] - vb[0]).cross(vb[2] - vb[0]);
+                a + w * (n_b.dot(vb[0] - a) / n_b.dot(w))
+            };
+            let fd = (moved(h) - moved(-h)) / (2.0 * h);
+            let slot = chain.groups[..chain.used]
+                .iter()
+                .position(|&g| g == t as u32)
+                .unwrap();
+            let dual = Vec3::from_array(std::array::from_fn(|i| {
+                chain.points[2][i].d[9 * slot + 3 * v + k]
+            }));
+            worst = worst.max((dual - fd).length() / fd.length().max(1e-3));
+        }
+        assert!(worst < 2e-2, "worst relative error {worst}");
+    }
+}

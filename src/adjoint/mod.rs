@@ -27,8 +27,8 @@
 //! box and Gaussian kernels (box: no time-shift term for the Monte Carlo models, so vertex
 //! gradients miss their largest part; a warning says so). Visibility changes (silhouettes,
 //! occlusion between hidden objects) add the boundary terms of [`boundary`] to the
-//! interior derivative, by default, for every shadow of the three-bounce transport; not
-//! yet for `path`'s paths of 5 or more bounces (docs/GRADIENTS.md).
+//! interior derivative, by default, for every shadow of the three-bounce transport and of
+//! `path`'s longer paths (`boundary_paths`; what is not covered: docs/GRADIENTS.md).
 
 pub mod boundary;
 mod boundary_paths;

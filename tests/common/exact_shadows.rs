@@ -19,23 +19,34 @@ use umbra::geometry::SceneGeometry;
 use umbra::scene::Scene;
 use umbra::transport::MeasurementCtx;
 
-struct Tri {
-    v: [DVec3; 3],
-    n: DVec3,
-    albedo: [f64; 3],
-    two_sided: bool,
+pub(super) struct Tri {
+    pub(super) v: [DVec3; 3],
+    pub(super) n: DVec3,
+    pub(super) albedo: [f64; 3],
+    pub(super) two_sided: bool,
+}
+
+impl Tri {
+    /// Albedo at `x` (on the triangle's plane): barycentric blend of the corners.
+    pub(super) fn albedo_at(&self, x: DVec3) -> f64 {
+        let (v, n) = (&self.v, self.n);
+        let area = n.dot((v[1] - v[0]).cross(v[2] - v[0]));
+        let b1 = n.dot((x - v[0]).cross(v[2] - v[0])) / area;
+        let b2 = n.dot((v[1] - v[0]).cross(x - v[0])) / area;
+        self.albedo[0] * (1.0 - b1 - b2) + self.albedo[1] * b1 + self.albedo[2] * b2
+    }
 }
 
 /// A receiver plane's frame: origin, two in-plane axes, normal.
-struct Frame {
-    o: DVec3,
-    u: DVec3,
-    w: DVec3,
-    n: DVec3,
+pub(super) struct Frame {
+    pub(super) o: DVec3,
+    pub(super) u: DVec3,
+    pub(super) w: DVec3,
+    pub(super) n: DVec3,
 }
 
 impl Frame {
-    fn of(t: &Tri) -> Frame {
+    pub(super) fn of(t: &Tri) -> Frame {
         let u = (t.v[1] - t.v[0]).normalize();
         Frame {
             o: t.v[0],
@@ -44,15 +55,15 @@ impl Frame {
             n: t.n,
         }
     }
-    fn to2(&self, p: DVec3) -> DVec2 {
+    pub(super) fn to2(&self, p: DVec3) -> DVec2 {
         DVec2::new((p - self.o).dot(self.u), (p - self.o).dot(self.w))
     }
-    fn to3(&self, p: DVec2) -> DVec3 {
+    pub(super) fn to3(&self, p: DVec2) -> DVec3 {
         self.o + p.x * self.u + p.y * self.w
     }
 }
 
-fn triangles(scene: &Scene) -> Vec<Tri> {
+pub(super) fn triangles(scene: &Scene) -> Vec<Tri> {
     let mut out = Vec::new();
     for o in &scene.objects {
         for (t, idx) in o.mesh.triangles.iter().enumerate() {
@@ -73,7 +84,7 @@ fn triangles(scene: &Scene) -> Vec<Tri> {
 
 /// The shadow of `q` cast from `o` onto the plane of `f`, in the plane's coordinates:
 /// the part of `q` strictly between `o` and the plane, projected. Empty if none.
-fn shadow(f: &Frame, q: &Tri, o: DVec3) -> Vec<DVec2> {
+pub(super) fn shadow(f: &Frame, q: &Tri, o: DVec3) -> Vec<DVec2> {
     let side = |p: DVec3| (p - f.o).dot(f.n);
     let s_o = side(o);
     // Keep the part of q in the slab between the plane and the parallel plane through o
@@ -112,7 +123,7 @@ fn shadow(f: &Frame, q: &Tri, o: DVec3) -> Vec<DVec2> {
 
 /// Sutherland–Hodgman: `subject` clipped to the convex polygon `clip` (either winding),
 /// without repeated corners (an edge of length ~0 has no direction to clip along).
-fn clip(subject: &[DVec2], clip: &[DVec2]) -> Vec<DVec2> {
+pub(super) fn clip(subject: &[DVec2], clip: &[DVec2]) -> Vec<DVec2> {
     let out = clip_raw(subject, &dedup(clip));
     let out = dedup(&out);
     if out.len() < 3 {
@@ -122,7 +133,7 @@ fn clip(subject: &[DVec2], clip: &[DVec2]) -> Vec<DVec2> {
 }
 
 /// `p` without corners within 1e-10 m of the previous one (cyclically).
-fn dedup(p: &[DVec2]) -> Vec<DVec2> {
+pub(super) fn dedup(p: &[DVec2]) -> Vec<DVec2> {
     let mut out: Vec<DVec2> = Vec::with_capacity(p.len());
     for &q in p {
         if out.last().is_none_or(|l| l.distance(q) > 1e-10) {
@@ -162,7 +173,7 @@ fn clip_raw(subject: &[DVec2], clip: &[DVec2]) -> Vec<DVec2> {
     out
 }
 
-fn area2(p: &[DVec2]) -> f64 {
+pub(super) fn area2(p: &[DVec2]) -> f64 {
     (0..p.len())
         .map(|i| p[i].perp_dot(p[(i + 1) % p.len()]))
         .sum()
@@ -185,7 +196,7 @@ const RULE: [(f64, f64, f64); 3] = [
 
 /// `∫ g dA` over the convex polygon `poly` (plane coordinates), `n²` sub-triangles per
 /// fan triangle.
-fn integrate(poly: &[DVec2], n: usize, g: &mut impl FnMut(DVec2) -> f64) -> f64 {
+pub(super) fn integrate(poly: &[DVec2], n: usize, g: &mut impl FnMut(DVec2) -> f64) -> f64 {
     let mut sum = 0.0;
     for k in 1..poly.len() - 1 {
         let (a, b, c) = (poly[0], poly[k], poly[k + 1]);
@@ -219,14 +230,14 @@ fn integrate(poly: &[DVec2], n: usize, g: &mut impl FnMut(DVec2) -> f64) -> f64 
 
 /// `a_m(τ)` tabulated finely (spacing a 64th of the kernel's scale) and interpolated
 /// linearly: the same function for every evaluation, so finite differences stay smooth.
-struct Adjoint {
+pub(super) struct Adjoint {
     start: f64,
     step: f64,
     values: Vec<f64>,
 }
 
 impl Adjoint {
-    fn new(film: &Film, lambda: &[f32]) -> Adjoint {
+    pub(super) fn new(film: &Film, lambda: &[f32]) -> Adjoint {
         let scale = match film.kernel {
             umbra::scene::KernelSpec::Gaussian { sigma_opl } => sigma_opl as f64,
             umbra::scene::KernelSpec::Box => film.width,
@@ -242,7 +253,7 @@ impl Adjoint {
             values,
         }
     }
-    fn at(&self, tau: f64) -> f64 {
+    pub(super) fn at(&self, tau: f64) -> f64 {
         let x = (tau - self.start) / self.step;
         if x < 0.0 || x >= (self.values.len() - 1) as f64 {
             return 0.0;
@@ -311,11 +322,7 @@ pub fn lit_integral(scene: &Scene, lambda: &[f32], n: usize) -> f64 {
                 }
                 let (rl, rs) = (dl.length(), ds.length());
                 let geometry = (cl * wl * cs * ws).abs() / (rl.powi(4) * rs.powi(4));
-                // Albedo at x: barycentric blend of the corners.
-                let area = r.n.dot((r.v[1] - r.v[0]).cross(r.v[2] - r.v[0]));
-                let b1 = r.n.dot((x - r.v[0]).cross(r.v[2] - r.v[0])) / area;
-                let b2 = r.n.dot((r.v[1] - r.v[0]).cross(x - r.v[0])) / area;
-                let rho = r.albedo[0] * (1.0 - b1 - b2) + r.albedo[1] * b1 + r.albedo[2] * b2;
+                let rho = r.albedo_at(x);
                 c * rho / std::f64::consts::PI * geometry * adj.at(rl + rs + legs)
             };
             total += integrate(&base, n, &mut g);

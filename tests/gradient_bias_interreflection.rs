@@ -216,20 +216,20 @@ struct Param {
     name: &'static str,
     param: (usize, usize, usize),
     /// Whether the interior derivative alone is asserted to be off, with area sampling
-    /// only and with the default MIS.
-    biased: [bool; 2],
+    /// only, with the default MIS and with BSDF sampling only.
+    biased: [bool; 3],
 }
 
 const PARAMS: [Param; 4] = [
     Param {
         name: "occluder corner x",
         param: (2, 0, 0),
-        biased: [true, true],
+        biased: [true, true, true],
     },
     Param {
         name: "occluder corner y",
         param: (2, 0, 1),
-        biased: [true, true],
+        biased: [true, true, true],
     },
     // The side plate shadows the back plate only from the scan points beyond x = 0.15,
     // from where no second hidden point sees both the back plate and the spot: for four
@@ -240,14 +240,14 @@ const PARAMS: [Param; 4] = [
     Param {
         name: "side-plate corner x (tilt)",
         param: (1, 3, 0),
-        biased: [false, true],
+        biased: [false, true, true],
     },
     // In-plane: the occluder's and the side plate's shadows stay where they are while
     // the plate's material points move under them.
     Param {
         name: "back-plate corner x (in plane)",
         param: (0, 0, 0),
-        biased: [true, true],
+        biased: [true, true, true],
     },
 ];
 
@@ -275,9 +275,18 @@ fn four_bounce_boundary_terms_against_the_exact_reference() {
     println!("|---|---|---|---|---|");
     let mut failures = Vec::new();
     // (label, extra render lines, spp, seeds): area sampling alone needs more samples.
+    // BSDF sampling alone moves every hidden point along a ray that turns with the
+    // previous vertex's normal, and its boundary terms have foreground parts: the
+    // interior derivative alone is off by up to 120 % there; noisier (48 seeds: ±1–3 %).
     let modes = [
         ("area sampling", &["bsdf_sampling = false"][..], 1 << 18, 8),
         ("MIS", &[][..], 1 << 17, 8),
+        (
+            "BSDF sampling only",
+            &["hidden_geometry_sampling = false"][..],
+            1 << 17,
+            48,
+        ),
     ];
     for (mi, (mode, extra, spp, seeds)) in modes.into_iter().enumerate() {
         let on = four_bounce(extra);

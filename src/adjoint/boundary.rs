@@ -50,7 +50,7 @@
 //! (`visible_legs` is a step in θ: no derivative), retroreflective receivers. A mesh seam
 //! (two copies of a vertex) sends an edge's share to the copies of the edge's first face.
 
-use super::boundary_paths::Longer;
+use super::boundary_paths::LongerPaths;
 use super::edge_nodes::{EdgeSet, Node, Placement, Point, ViewCache};
 use crate::film::Film;
 use crate::geometry::SurfaceKind;
@@ -76,7 +76,7 @@ pub struct Boundary {
     /// BSDF sampling, whose points move differently ([`Boundary::measurement`]).
     path_mixture: bool,
     /// `path` with paths of 4 bounces or more ([`super::boundary_paths`]).
-    longer: Option<Longer>,
+    longer: Option<LongerPaths>,
 }
 
 /// Per-object vertex gradients (the scatter's target).
@@ -103,7 +103,7 @@ impl Boundary {
             edges: EdgeSet::new(scene),
             placement,
             path_mixture: opts.model == Model::Path && scene.render.techniques.bsdf_sampling,
-            longer: Longer::new(scene, opts),
+            longer: LongerPaths::new(scene, opts),
         }
     }
 
@@ -308,7 +308,7 @@ struct View {
 }
 
 /// `path`'s longer paths, and the random numbers of one node's walks.
-type Walks<'a> = Option<(&'a Longer, Sampler)>;
+type Walks<'a> = Option<(&'a LongerPaths, Sampler)>;
 
 /// `Σ_b δH_b F_b J dℓ` of the node for the hidden point `p` (its receiver, or the
 /// occluder at the edge), seen from the node's wall point `o` and lit from `other`

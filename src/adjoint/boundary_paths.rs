@@ -15,7 +15,7 @@
 //!
 //! - **First leg** (`x_s → y_1`, seen from `x_s`) and **last leg** (`y_k → x_l`, seen from
 //!   `x_l`): the nodes of the three-bounce terms, with the rest of the path estimated by a
-//!   walk from the receiver toward the other wall point ([`Longer::link`], `path`'s own
+//!   walk from the receiver toward the other wall point ([`LongerPaths::link`], `path`'s own
 //!   step routine). The last leg's receiver velocity needs the path before it: the walk's
 //!   vertices, reversed, are that path.
 //! - **Hidden→hidden legs** (`y_i → y_{i+1}`): `count` walks per measurement from `x_s`
@@ -26,8 +26,9 @@
 //! All random numbers are drawn from streams of their own, keyed by seed, measurement and
 //! node or sample: same bits on any thread count. Not covered: shadows falling on the
 //! relay wall mid-path and hidden points seen from the wall mid-path (paths of 5 or more
-//! bounces that bounce on the wall), vertices beyond [`crate::transport::path::PATH_TRIANGLES`]
-//! distinct triangles of a chain (their velocity is dropped, as in `path`'s replay).
+//! bounces that bounce on the wall); the motion of triangles beyond the
+//! [`crate::transport::path::PATH_TRIANGLES`] nearest the receiver in a chain (dropped;
+//! `path`'s replay keeps the first four of a path instead).
 
 use super::boundary::{scatter, Motion, VertexGrad};
 use super::chain::{ChainDual, ChainNum, Last};
@@ -42,7 +43,7 @@ use crate::transport::{MeasurementCtx, RenderOptions};
 use glam::Vec3;
 
 /// The longer paths' part of a `path` gradient's boundary terms.
-pub struct Longer {
+pub struct LongerPaths {
     seed: u64,
     /// Hidden→hidden samples per measurement.
     count: u32,
@@ -63,12 +64,12 @@ fn stream(m: usize, tag: u64) -> u64 {
     0xB0DA_0000_0000_0000 ^ ((m as u64) << 4) ^ tag
 }
 
-impl Longer {
+impl LongerPaths {
     /// `Some` for `path` gradients whose paths can have 4 bounces or more.
-    pub fn new(scene: &Scene, opts: &RenderOptions) -> Option<Longer> {
+    pub fn new(scene: &Scene, opts: &RenderOptions) -> Option<LongerPaths> {
         let r = &scene.render;
         let longest = r.max_bounces.min(r.filter_bounces.unwrap_or(u32::MAX));
-        (opts.model == Model::Path && longest >= 4).then(|| Longer {
+        (opts.model == Model::Path && longest >= 4).then(|| LongerPaths {
             seed: opts.seed,
             count: opts.spp.max(1).div_ceil(SPLIT),
             mixture: r.techniques.bsdf_sampling,
@@ -88,7 +89,7 @@ impl Longer {
     /// point `other` past at least one more hidden vertex, and calls `each(vertices,
     /// a · value)` for every path it closes by a connection to `other`: `value` the
     /// transport from `start` (its BRDF included) to `other` (its BRDF not), `a` the
-    /// film's adjoint at the path's OPL, `opl0` plus what was walked. `bounces0` is the
+    /// film's adjoint at the path's OPL: `opl0`, what was walked and the connection. `bounces0` is the
     /// bounce count of the path closed at `start`.
     #[allow(clippy::too_many_arguments)]
     pub fn link(
@@ -200,6 +201,9 @@ impl Longer {
             sampler,
             |v, w| {
                 let w = w * factor;
+                if !w.is_finite() {
+                    return;
+                }
                 chain.clear();
                 chain.push(WalkVertex::wall(ctx, ctx.x_s));
                 chain.extend(v.iter().rev());

@@ -118,7 +118,8 @@ impl ChainDual {
         }
     }
 
-    /// Adds `weight · ∂s/∂θ` to the vertices of the chain's triangles.
+    /// Adds `weight · ∂s/∂θ` to the vertices of the chain's triangles (nothing if a
+    /// derivative is not finite: a ray grazing its receiver's plane).
     pub fn scatter(
         &self,
         scene: &Scene,
@@ -127,6 +128,9 @@ impl ChainDual {
         weight: f64,
         grad: &mut VertexGrad,
     ) {
+        if s.d.iter().any(|d| !d.is_finite()) {
+            return;
+        }
         for (g, &flat) in self.groups[..self.used].iter().enumerate() {
             let (o, t) = ctx.geom.flat_to_local[flat as usize];
             let corners = scene.objects[o as usize].mesh.triangles[t as usize];

@@ -242,7 +242,8 @@ impl EdgeSet {
         }
         let len = (e.p[1] - e.p[0]).length();
         let (n, _) = node(geom, (o, n_o), e, u[1], keep_missing);
-        n.map(|n| Node {
+        // From a hidden point, an edge grazing its own plane is seen edge-on: nothing.
+        n.filter(|n| n.cos_o > 1e-5).map(|n| Node {
             length: len * total / e.angle,
             ..n
         })
@@ -288,7 +289,7 @@ fn node(
         return (None, Class::Hidden);
     };
     let cos_o = n_o.dot(frame.d);
-    if cos_o <= 1e-5 {
+    if cos_o <= 0.0 {
         return (None, Class::Hidden);
     }
     // One ray from o through a point just on the lit side of y: it never meets the edge's

@@ -50,7 +50,7 @@
 
 use super::mc3::TriParams;
 use super::path_step::{
-    bsdf_share, continuation, hidden_geometry_distribution, step, survival,
+    bsdf_share, continuation, hidden_geometry_distribution, p_hg_at, step, survival,
     technique_probabilities, Surf, WalkVertex,
 };
 pub use super::path_step::{BSDF_SHARE_AT_HIDDEN, BSDF_SHARE_AT_WALL};
@@ -178,12 +178,6 @@ pub fn sample<S: Sink>(
         0.0
     };
     let hg_dist = hidden_geometry_distribution(geom, tech);
-    let n_hidden = geom.hidden.len() as u32;
-    // Hidden-geometry sampling's area density at a point of a wall triangle.
-    let wall_pdf = |k: u32| {
-        let [a, b, c] = geom.wall_tris[k as usize];
-        hg_dist.prob(n_hidden + k) / (0.5 * (b - a).cross(c - a).length())
-    };
     let n_w = ctx.n_w;
     let wall_surf = |p: Vec3| Surf {
         p: p.to_array(),
@@ -230,7 +224,7 @@ pub fn sample<S: Sink>(
             break;
         };
         let (by_bsdf, u_dir, back, q, p_hg) = (st.by_bsdf, st.u_dir, st.back, st.q, st.p_hg);
-        let (y_p, y_n, kind, flat, bary) = (st.y.p(), st.n, st.kind, st.y.flat, st.y.bary);
+        let (y_p, kind, flat, bary) = (st.y.p(), st.kind, st.y.flat, st.y.bary);
         let on_wall = kind == SurfaceKind::Wall;
         beta *= st.factor;
         opl += st.dist;
@@ -324,15 +318,8 @@ pub fn sample<S: Sink>(
             }
         } else {
             hidden_seen = true;
-            let tri = &geom.hidden[flat as usize];
-            let albedo = tri.albedo_at(bary);
-            let f_y = albedo * FRAC_1_PI;
-            let n_side = if back { -y_n } else { y_n };
-            let y_surf = Surf {
-                p: y_p.to_array(),
-                n_side: n_side.to_array(),
-                f: f_y,
-            };
+            let (y_surf, albedo) = (st.y.s, st.y.albedo);
+            let (f_y, n_side) = (y_surf.f, st.y.n_side());
             if tech.laser_sampling && keep(j + 2, hidden_seen) {
                 let x_l = sample_spot(ctx, u_spot);
                 if let Some((g, r_l)) = nee(&y_surf, x_l, n_w) {
@@ -346,7 +333,7 @@ pub fn sample<S: Sink>(
                         let (cos_y_l, cos_wall_l) = (n_side.dot(w_l), -n_w.dot(w_l));
                         let q_l = c_b * cos_y_l * FRAC_1_PI * cos_wall_l / (r_l * r_l)
                             + if tech.hidden_geometry_includes_wall {
-                                c_h * wall_pdf(geom.wall_tri_of(x_l))
+                                c_h * p_hg_at(ctx, u32::MAX, || geom.wall_tri_of(x_l))
                             } else {
                                 0.0
                             };

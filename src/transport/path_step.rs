@@ -145,7 +145,7 @@ pub(crate) fn continuation<R: Real>(
 
 /// Hidden-geometry sampling's area density at `y` (hidden triangle `flat`, or the wall
 /// triangle `wall_tri` when `flat` is `u32::MAX`); 0 where it cannot reach `y`.
-fn p_hg_at(ctx: &MeasurementCtx, flat: u32, wall_tri: impl FnOnce() -> u32) -> f32 {
+pub(crate) fn p_hg_at(ctx: &MeasurementCtx, flat: u32, wall_tri: impl FnOnce() -> u32) -> f32 {
     let (geom, tech) = (ctx.geom, &ctx.scene.render.techniques);
     let hg_dist = hidden_geometry_distribution(geom, tech);
     let n_hidden = geom.hidden.len() as u32;
@@ -186,9 +186,8 @@ pub(crate) fn bsdf_share(
 /// One sampled continuation.
 pub(crate) struct Step {
     pub y: WalkVertex,
-    /// The surface's kind and geometric normal at `y`.
+    /// The surface's kind at `y`.
     pub kind: SurfaceKind,
-    pub n: Vec3,
     /// Drawn by BSDF sampling (then `u_dir` drove the direction).
     pub by_bsdf: bool,
     pub u_dir: [f32; 2],
@@ -260,7 +259,14 @@ pub(crate) fn step(
     if back && (on_wall || !geom.hidden[flat as usize].two_sided) {
         return None;
     }
-    let n_side = if back { -y_n } else { y_n };
+    // The wall's side is its normal toward the hidden scene (as `path` keeps it).
+    let n_side = if on_wall {
+        n_w
+    } else if back {
+        -y_n
+    } else {
+        y_n
+    };
     let (albedo, f) = if on_wall {
         (ctx.scene.wall.albedo, ctx.f_wall)
     } else {
@@ -280,7 +286,6 @@ pub(crate) fn step(
     Some(Step {
         y,
         kind,
-        n: y_n,
         by_bsdf,
         u_dir,
         back,

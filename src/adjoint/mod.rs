@@ -123,7 +123,10 @@ pub fn gradient(
 ) -> Result<Gradient> {
     let model = opts.model;
     crate::transport::gate::check(scene, opts, crate::transport::gate::Pass::Gradient)?;
-    let tri3 = (model == Model::Tri3).then(|| Tri3Mesh::build(scene, geom, opts.subdivision));
+    let tri3 = (model == Model::Tri3).then(|| {
+        let mesh = Tri3Mesh::build(scene, geom, opts.subdivision);
+        (mesh, tri3_exact::parent_duals(geom))
+    });
     let film = Film::new(&scene.film);
     let (measurements, bins) = (scene.num_measurements(), film.bins);
     if adjoint.len() != measurements * bins {
@@ -160,14 +163,15 @@ pub fn gradient(
                 }
                 if !ctx.legs_visible {
                     if let Some(p) = progress {
-                        let work = tri3.as_ref().map_or(spp as u64, |t| t.len() as u64);
+                        let work = tri3.as_ref().map_or(spp as u64, |t| t.0.len() as u64);
                         p.work_done.fetch_add(work, Ordering::Relaxed);
                     }
                     continue;
                 }
-                if let Some(mesh) = &tri3 {
+                if let Some((mesh, duals)) = &tri3 {
                     tri3_exact::adjoint_measurement(
                         mesh,
+                        duals,
                         &ctx,
                         &film,
                         opts.visibility,

@@ -22,6 +22,9 @@ use std::f64::consts::FRAC_1_PI;
 /// Derivatives with respect to the original triangle's [`TRI_PARAMS`], in `f64`.
 pub type TriDual64 = Dual<f64, TRI_PARAMS>;
 
+/// Derivatives with respect to a pulse's seven inputs (corner OPLs, corner weights, area).
+type PulseDual = Dual<f64, 7>;
+
 /// Sub-triangle `k` of `mesh` for the measurement `ctx`, whose original triangle is
 /// `parent`: calls `add(bin, content)` for every bin its pulse reaches, unscaled by the
 /// laser power and the wall's BRDF (`ctx.power f_wall²`, applied by the caller).
@@ -29,18 +32,46 @@ pub type TriDual64 = Dual<f64, TRI_PARAMS>;
 pub fn pair_bins<R: Real>(
     mesh: &Tri3Mesh,
     k: usize,
-    parent: &TriParams<R>,
+    parent: &Parent<R>,
     ctx: &MeasurementCtx,
     film: &Film,
     add: impl FnMut(usize, R),
 ) {
+    if let Some((tau, w, area)) = pair_pulse(mesh, k, parent, ctx) {
+        film.triangle_bins(tau, w, area, add);
+    }
+}
+
+/// An original triangle with its unit normal and area, which every sub-triangle and
+/// measurement share (computed once per gradient, not per pair).
+pub struct Parent<R> {
+    pub params: TriParams<R>,
+    pub n: dual::V3<R>,
+    pub area: R,
+}
+
+impl<R: Real> Parent<R> {
+    pub fn new(params: TriParams<R>) -> Self {
+        let (n, area) = params.normal_area();
+        Parent { params, n, area }
+    }
+}
+
+/// The pulse of sub-triangle `k` ([`pair_bins`]): corner OPLs with the curvature shift
+/// (m), corner weights and area; `None` where it reflects nothing.
+pub fn pair_pulse<R: Real>(
+    mesh: &Tri3Mesh,
+    k: usize,
+    parent: &Parent<R>,
+    ctx: &MeasurementCtx,
+) -> Option<([R; 3], [R; 3], R)> {
+    let (n, parent_area, parent) = (parent.n, parent.area, &parent.params);
     let corner_bary = mesh.corner_bary[k];
     let corners = corner_bary.map(|b| parent.point(b));
     let brdf = corner_bary.map(|b| parent.albedo_at(b).s(FRAC_1_PI));
     let (x_l, x_s) = (dual::constant::<R>(ctx.x_l), dual::constant::<R>(ctx.x_s));
     let n_w = dual::constant::<R>(ctx.n_w);
     let legs = R::c((ctx.opl_laser_leg(ctx.x_l) + ctx.opl_sensor_leg) as f64);
-    let (n, _) = parent.normal_area();
     // The plane terms r cos θ at x, the same at every corner of the (planar) triangle.
     let p_l = dual::dot(n, dual::sub(x_l, corners[0]));
     let p_s = dual::dot(n, dual::sub(x_s, corners[0]));
@@ -50,7 +81,7 @@ pub fn pair_bins<R: Real>(
         p_l.v() > 0.0 && p_s.v() > 0.0
     };
     if !facing {
-        return;
+        return None;
     }
     // Retroreflective (confocal): the return leg's p_s c_s / r_s⁴ is the constant 1/m².
     let plane = if parent.retro {
@@ -75,22 +106,20 @@ pub fn pair_bins<R: Real>(
         }
     }
     if w.iter().all(|w| w.v() <= 0.0) {
-        return;
+        return None;
     }
-    let sub = TriParams {
-        v: corners,
-        albedo: brdf,
-        two_sided: parent.two_sided,
-        retro: parent.retro,
-    };
-    let (_, area) = sub.normal_area();
+    // The sub-triangle's corners are affine in the parent's: its area is the parent's
+    // times the (fixed) area of its barycentric triangle.
+    let [b0, b1, b2] = corner_bary.map(|b| b.map(f64::from));
+    let ratio = ((b1[0] - b0[0]) * (b2[1] - b0[1]) - (b1[1] - b0[1]) * (b2[0] - b0[0])).abs();
+    let area = parent_area.s(ratio);
     let third = 1.0 / 3.0;
     let centroid: dual::V3<R> =
         std::array::from_fn(|a| (corners[0][a] + corners[1][a] + corners[2][a]).s(third));
     let tau_c =
         dual::length(dual::sub(x_l, centroid)) + dual::length(dual::sub(x_s, centroid)) + legs;
     let shift = (tau_c - (tau[0] + tau[1] + tau[2]).s(third)).s(0.75);
-    film.triangle_bins(tau.map(|t| t + shift), w, area, add);
+    Some((tau.map(|t| t + shift), w, area))
 }
 
 impl TriParams<f64> {
@@ -120,7 +149,9 @@ pub fn render_measurement(
     let scale = (ctx.power * ctx.f_wall * ctx.f_wall) as f64;
     for k in 0..mesh.len() {
         if mesh.visible(k, ctx, visibility, &mut parents) {
-            let parent = TriParams::constant64(&ctx.geom.hidden[mesh.parent[k] as usize]);
+            let parent = Parent::new(TriParams::constant64(
+                &ctx.geom.hidden[mesh.parent[k] as usize],
+            ));
             pair_bins(mesh, k, &parent, ctx, film, |b, v: f64| {
                 hist[b] += scale * v
             });
@@ -128,10 +159,21 @@ pub fn render_measurement(
     }
 }
 
+/// Every hidden triangle of `geom` in dual numbers over its own parameters, with its
+/// normal and area: what [`adjoint_measurement`] reads (`duals`).
+pub fn parent_duals(geom: &crate::geometry::SceneGeometry) -> Vec<Parent<TriDual64>> {
+    geom.hidden
+        .iter()
+        .map(|t| Parent::new(TriParams::variables(t)))
+        .collect()
+}
+
 /// The `tri3` adjoint of measurement `ctx`: adds `Σ_b adjoint_b dH_b/dθ` for every
 /// original triangle's local parameters θ (corners, corner albedos) into `tri_grad`.
+#[allow(clippy::too_many_arguments)]
 pub fn adjoint_measurement(
     mesh: &Tri3Mesh,
+    duals: &[Parent<TriDual64>],
     ctx: &MeasurementCtx,
     film: &Film,
     visibility: crate::scene::Visibility,
@@ -146,13 +188,31 @@ pub fn adjoint_measurement(
             continue;
         }
         let p = mesh.parent[k] as usize;
-        let parent = TriParams::<TriDual64>::variables(&ctx.geom.hidden[p]);
+        let Some((tau, w, area)) = pair_pulse(mesh, k, &duals[p], ctx) else {
+            continue;
+        };
+        // Reverse through the pulse: `Σ_b δH_b ∂H_b/∂(τ_i, w_i, A)` by seven-slot duals
+        // through the bins, then the chain rule to the twelve parameters once per pair.
+        let seed = |v: TriDual64, i: usize| PulseDual::var(v.v, i);
+        let mut g = [0.0f64; 7];
+        film.triangle_bins(
+            std::array::from_fn(|i| seed(tau[i], i)),
+            std::array::from_fn(|i| seed(w[i], 3 + i)),
+            seed(area, 6),
+            |b, v: PulseDual| {
+                let a = adjoint[b] as f64;
+                if a != 0.0 {
+                    g.iter_mut().zip(v.d).for_each(|(g, d)| *g += a * d);
+                }
+            },
+        );
         let acc = &mut tri_grad[p];
-        pair_bins(mesh, k, &parent, ctx, film, |b, v: TriDual64| {
-            let a = adjoint[b] as f64 * scale;
-            if a != 0.0 {
-                acc.iter_mut().zip(v.d).for_each(|(g, d)| *g += a * d);
-            }
-        });
+        let inputs = tau.iter().chain(&w).chain(std::iter::once(&area));
+        for (gk, input) in g.iter().zip(inputs) {
+            let c = gk * scale;
+            acc.iter_mut()
+                .zip(input.d)
+                .for_each(|(acc, d)| *acc += c * d);
+        }
     }
 }

@@ -67,14 +67,12 @@ pub fn pair_pulse<R: Real>(
 ) -> Option<([R; 3], [R; 3], R)> {
     let (n, parent_area, parent) = (parent.n, parent.area, &parent.params);
     let corner_bary = mesh.corner_bary[k];
-    let corners = corner_bary.map(|b| parent.point(b));
-    let brdf = corner_bary.map(|b| parent.albedo_at(b).s(FRAC_1_PI));
     let (x_l, x_s) = (dual::constant::<R>(ctx.x_l), dual::constant::<R>(ctx.x_s));
     let n_w = dual::constant::<R>(ctx.n_w);
     let legs = R::c((ctx.opl_laser_leg(ctx.x_l) + ctx.opl_sensor_leg) as f64);
-    // The plane terms r cos θ at x, the same at every corner of the (planar) triangle.
-    let p_l = dual::dot(n, dual::sub(x_l, corners[0]));
-    let p_s = dual::dot(n, dual::sub(x_s, corners[0]));
+    // The plane terms r cos θ at x, the same at every point of the (planar) triangle.
+    let p_l = dual::dot(n, dual::sub(x_l, parent.v[0]));
+    let p_s = dual::dot(n, dual::sub(x_s, parent.v[0]));
     let facing = if parent.two_sided {
         p_l.v() * p_s.v() > 0.0
     } else {
@@ -91,17 +89,20 @@ pub fn pair_pulse<R: Real>(
     };
     let mut tau = [R::c(0.0); 3];
     let mut w = [R::c(0.0); 3];
+    // Corner by corner (large dual arrays are not built: their copies dominated).
     for i in 0..3 {
-        let (d_l, d_s) = (dual::sub(x_l, corners[i]), dual::sub(x_s, corners[i]));
+        let corner = parent.point(corner_bary[i]);
+        let (d_l, d_s) = (dual::sub(x_l, corner), dual::sub(x_s, corner));
         let (r2_l, r2_s) = (dual::dot(d_l, d_l), dual::dot(d_s, d_s));
         tau[i] = r2_l.sqrt() + r2_s.sqrt() + legs;
         let (c_l, c_s) = (-dual::dot(n_w, d_l), -dual::dot(n_w, d_s));
         if c_l.v() > 0.0 && c_s.v() > 0.0 {
+            let brdf = parent.albedo_at(corner_bary[i]).s(FRAC_1_PI);
             w[i] = if parent.retro {
-                brdf[i] * plane * c_l / (r2_l * r2_l)
+                brdf * plane * c_l / (r2_l * r2_l)
             } else {
                 let r4 = r2_l * r2_s;
-                brdf[i] * plane * c_l * c_s / (r4 * r4)
+                brdf * plane * c_l * c_s / (r4 * r4)
             };
         }
     }
@@ -114,8 +115,15 @@ pub fn pair_pulse<R: Real>(
     let ratio = ((b1[0] - b0[0]) * (b2[1] - b0[1]) - (b1[1] - b0[1]) * (b2[0] - b0[0])).abs();
     let area = parent_area.s(ratio);
     let third = 1.0 / 3.0;
+    // The centroid, at the mean of the corners' barycentrics (kept in f64: the shift is a
+    // small difference of OPLs).
+    let (c1, c2) = (
+        (b0[0] + b1[0] + b2[0]) * third,
+        (b0[1] + b1[1] + b2[1]) * third,
+    );
+    let v = &parent.v;
     let centroid: dual::V3<R> =
-        std::array::from_fn(|a| (corners[0][a] + corners[1][a] + corners[2][a]).s(third));
+        std::array::from_fn(|a| v[0][a].s(1.0 - c1 - c2) + v[1][a].s(c1) + v[2][a].s(c2));
     let tau_c =
         dual::length(dual::sub(x_l, centroid)) + dual::length(dual::sub(x_s, centroid)) + legs;
     let shift = (tau_c - (tau[0] + tau[1] + tau[2]).s(third)).s(0.75);

@@ -49,6 +49,7 @@ use crate::transport::mc3::TRI_PARAMS;
 use crate::transport::path::PathScratch;
 use crate::transport::tri3::Tri3Mesh;
 use crate::transport::tri3_exact;
+use crate::transport::tri3_reverse::ParentGeom;
 use crate::transport::{
     run_samples_with, Contribution, HiddenGrad, MeasurementCtx, Progress, RenderOptions, Sink,
     BLOCK_SPP,
@@ -125,7 +126,10 @@ pub fn gradient(
     crate::transport::gate::check(scene, opts, crate::transport::gate::Pass::Gradient)?;
     let tri3 = (model == Model::Tri3).then(|| {
         let mesh = Tri3Mesh::build(scene, geom, opts.subdivision);
-        (mesh, tri3_exact::parent_duals(geom))
+        (
+            mesh,
+            geom.hidden.iter().map(ParentGeom::new).collect::<Vec<_>>(),
+        )
     });
     let film = Film::new(&scene.film);
     let (measurements, bins) = (scene.num_measurements(), film.bins);

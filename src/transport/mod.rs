@@ -21,6 +21,7 @@ pub mod render;
 pub mod tri3;
 pub mod tri3_exact;
 pub mod tri3_kernel;
+pub mod tri3_reverse;
 
 pub use render::{render, Progress, RenderOptions, Renderer, Transient};
 

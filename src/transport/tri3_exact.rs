@@ -14,6 +14,7 @@
 
 use super::mc3::{TriParams, TRI_PARAMS};
 use super::tri3::Tri3Mesh;
+use super::tri3_reverse::{self, ParentGeom};
 use super::MeasurementCtx;
 use crate::adjoint::dual::{self, Dual, Real};
 use crate::film::Film;
@@ -167,60 +168,48 @@ pub fn render_measurement(
     }
 }
 
-/// Every hidden triangle of `geom` in dual numbers over its own parameters, with its
-/// normal and area: what [`adjoint_measurement`] reads (`duals`).
-pub fn parent_duals(geom: &crate::geometry::SceneGeometry) -> Vec<Parent<TriDual64>> {
-    geom.hidden
-        .iter()
-        .map(|t| Parent::new(TriParams::variables(t)))
-        .collect()
-}
-
 /// The `tri3` adjoint of measurement `ctx`: adds `Σ_b adjoint_b dH_b/dθ` for every
-/// original triangle's local parameters θ (corners, corner albedos) into `tri_grad`.
+/// original triangle's local parameters θ (corners, corner albedos) into `tri_grad`. Per
+/// pair: the pulse's inputs in `f64` ([`super::tri3_reverse::forward`]), the pulse
+/// reversed by seven-slot duals through its bins, then the per-pair physics reversed
+/// ([`super::tri3_reverse::reverse`]; this module's dual-number [`pair_pulse`] is its
+/// test oracle). `parents`: every hidden triangle, once per gradient.
 #[allow(clippy::too_many_arguments)]
 pub fn adjoint_measurement(
     mesh: &Tri3Mesh,
-    duals: &[Parent<TriDual64>],
+    parents: &[ParentGeom],
     ctx: &MeasurementCtx,
     film: &Film,
     visibility: crate::scene::Visibility,
     adjoint: &[f32],
     tri_grad: &mut [[f64; TRI_PARAMS]],
 ) {
-    let mut parents = Vec::new();
-    mesh.parent_visibility(visibility, &mut parents);
+    let mut seen = Vec::new();
+    mesh.parent_visibility(visibility, &mut seen);
     let scale = (ctx.power * ctx.f_wall * ctx.f_wall) as f64;
     for k in 0..mesh.len() {
-        if !mesh.visible(k, ctx, visibility, &mut parents) {
+        if !mesh.visible(k, ctx, visibility, &mut seen) {
             continue;
         }
         let p = mesh.parent[k] as usize;
-        let Some((tau, w, area)) = pair_pulse(mesh, k, &duals[p], ctx) else {
+        let Some(pair) = tri3_reverse::forward(mesh, k, &parents[p], ctx) else {
             continue;
         };
-        // Reverse through the pulse: `Σ_b δH_b ∂H_b/∂(τ_i, w_i, A)` by seven-slot duals
-        // through the bins, then the chain rule to the twelve parameters once per pair.
-        let seed = |v: TriDual64, i: usize| PulseDual::var(v.v, i);
+        let seed = |v: f64, i: usize| PulseDual::var(v, i);
         let mut g = [0.0f64; 7];
         film.triangle_bins(
-            std::array::from_fn(|i| seed(tau[i], i)),
-            std::array::from_fn(|i| seed(w[i], 3 + i)),
-            seed(area, 6),
+            std::array::from_fn(|i| seed(pair.tau[i], i)),
+            std::array::from_fn(|i| seed(pair.w[i], 3 + i)),
+            seed(pair.area, 6),
             |b, v: PulseDual| {
-                let a = adjoint[b] as f64;
+                let a = adjoint[b] as f64 * scale;
                 if a != 0.0 {
                     g.iter_mut().zip(v.d).for_each(|(g, d)| *g += a * d);
                 }
             },
         );
-        let acc = &mut tri_grad[p];
-        let inputs = tau.iter().chain(&w).chain(std::iter::once(&area));
-        for (gk, input) in g.iter().zip(inputs) {
-            let c = gk * scale;
-            acc.iter_mut()
-                .zip(input.d)
-                .for_each(|(acc, d)| *acc += c * d);
+        if g.iter().any(|&g| g != 0.0) {
+            tri3_reverse::reverse(&pair, &parents[p], ctx, &g, &mut tri_grad[p]);
         }
     }
 }

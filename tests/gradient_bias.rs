@@ -56,15 +56,6 @@ fn fixed_adjoint(s: &Scene) -> Vec<f32> {
         .1
 }
 
-fn moved(s: &Scene, (o, v, k): (usize, usize, usize), h: f64) -> (Scene, f64) {
-    let mut m = s.clone();
-    let x = &mut m.objects[o].mesh.positions[v][k];
-    let old = *x;
-    *x += h as f32;
-    let step = (*x - old) as f64;
-    (m, step)
-}
-
 /// Central difference of the reference at step `h`, quadrature `n`.
 fn reference_fd(s: &Scene, lambda: &[f32], p: (usize, usize, usize), h: f64, n: usize) -> f64 {
     let ((up, hu), (down, hd)) = (moved(s, p, h), moved(s, p, -h));

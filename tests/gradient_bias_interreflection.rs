@@ -158,15 +158,6 @@ fn reference_primal_matches_path() {
     assert!((a - b).abs() < 1e-6 * a.abs());
 }
 
-fn moved(s: &Scene, (o, v, k): (usize, usize, usize), h: f64) -> (Scene, f64) {
-    let mut m = s.clone();
-    let x = &mut m.objects[o].mesh.positions[v][k];
-    let old = *x;
-    *x += h as f32;
-    let step = (*x - old) as f64;
-    (m, step)
-}
-
 /// Central difference of the reference at step `h` and quadrature orders `n`.
 fn reference_fd(
     s: &Scene,

@@ -53,7 +53,6 @@
 use super::boundary_paths::LongerPaths;
 use super::edge_nodes::{EdgeSet, Node, Placement, Point, ViewCache};
 use crate::film::Film;
-use crate::geometry::SurfaceKind;
 use crate::rng::Sampler;
 use crate::scene::{KernelSpec, Model, Scene};
 use crate::transport::{MeasurementCtx, RenderOptions};
@@ -251,18 +250,8 @@ impl Boundary {
         walks: &mut Walks,
         grad: &mut VertexGrad,
     ) {
-        let f = &node.frame;
-        let inside = f.y - 4.0 * ctx.geom.eps * f.n;
-        let Some(hit) = ctx.geom.intersect(f.o, (inside - f.o).normalize()) else {
+        let Some(fg) = super::edge_nodes::occluder_at(ctx.geom, node.frame.o, &node.frame) else {
             return;
-        };
-        if !matches!(hit.kind, SurfaceKind::Hidden { .. }) {
-            return;
-        }
-        let fg = Point {
-            flat: hit.flat,
-            bary: hit.bary,
-            x: hit.p,
         };
         let Some(w) = weight(ctx, film, adjoint, &fg, node, other, walks) else {
             return;

@@ -33,9 +33,8 @@
 use super::boundary::{scatter, Motion, VertexGrad};
 use super::chain::{ChainDual, ChainNum, Last};
 use super::dual::{self, Real};
-use super::edge_nodes::{EdgeSet, Node, Point};
+use super::edge_nodes::{occluder_at, EdgeSet, Node, Point};
 use crate::film::Film;
-use crate::geometry::SurfaceKind;
 use crate::rng::Sampler;
 use crate::scene::{Model, Scene};
 use crate::transport::path_step::{bsdf_share, walk, WalkVertex};
@@ -68,7 +67,7 @@ impl LongerPaths {
     /// `Some` for `path` gradients whose paths can have 4 bounces or more.
     pub fn new(scene: &Scene, opts: &RenderOptions) -> Option<LongerPaths> {
         let r = &scene.render;
-        let longest = r.max_bounces.min(r.filter_bounces.unwrap_or(u32::MAX));
+        let longest = r.longest_bounces();
         (opts.model == Model::Path && longest >= 4).then(|| LongerPaths {
             seed: opts.seed,
             count: opts.spp.max(1).div_ceil(SPLIT),
@@ -103,7 +102,7 @@ impl LongerPaths {
         mut each: impl FnMut(&[WalkVertex], f64),
     ) {
         let r = &ctx.scene.render;
-        let last = r.max_bounces.min(r.filter_bounces.unwrap_or(u32::MAX));
+        let last = r.longest_bounces();
         let mut vertices = Vec::with_capacity(8);
         walk(
             ctx,
@@ -141,22 +140,32 @@ impl LongerPaths {
         node: &Node,
         sampler: &mut Sampler,
     ) -> f64 {
-        let Some(start) = receiver_vertex(ctx, p, node.frame.o) else {
-            return 0.0;
-        };
         let mut sum = 0.0;
-        let opl0 = leg_opl(ctx, p.x, node.frame.o);
-        Self::link(
-            ctx,
-            film,
-            adjoint,
-            start,
-            ctx.x_l,
-            (opl0, 3),
-            sampler,
-            |_, w| sum += w,
-        );
+        Self::node_link(ctx, film, adjoint, p, node, ctx.x_l, sampler, |_, w| {
+            sum += w
+        });
         sum * Self::leg_factor(ctx, node)
+    }
+
+    /// [`Self::link`] from a wall-point node's hidden point `p` (on the side facing the
+    /// node's wall point, OPL so far `|p − o|` and the two legs, 3 bounces if closed at `p`)
+    /// toward `other`.
+    #[allow(clippy::too_many_arguments)]
+    fn node_link(
+        ctx: &MeasurementCtx,
+        film: &Film,
+        adjoint: &[f32],
+        p: &Point,
+        node: &Node,
+        other: Vec3,
+        sampler: &mut Sampler,
+        each: impl FnMut(&[WalkVertex], f64),
+    ) {
+        let o = node.frame.o;
+        if let Some(start) = receiver_vertex(ctx, p, o) {
+            let opl0 = leg_opl(ctx, p.x, o);
+            Self::link(ctx, film, adjoint, start, other, (opl0, 3), sampler, each);
+        }
     }
 
     /// `C cos_o sin φ / r_y² dℓ` of a node seen from a wall point (`C = P (ρ_w/π)²`),
@@ -181,38 +190,24 @@ impl LongerPaths {
         sampler: &mut Sampler,
         grad: &mut VertexGrad,
     ) {
-        let o = node.frame.o;
-        let Some(start) = receiver_vertex(ctx, p, o) else {
-            return;
-        };
         let factor = Self::leg_factor(ctx, node);
-        let rho = node.frame.r_y / (p.x - o).length();
+        let rho = node.frame.r_y / (p.x - node.frame.o).length();
         let n = dual::constant::<ChainNum>(node.frame.n);
         let mut edge = 0.0;
         let mut chain = Vec::with_capacity(8);
-        let opl0 = leg_opl(ctx, p.x, o);
-        Self::link(
-            ctx,
-            film,
-            adjoint,
-            start,
-            ctx.x_s,
-            (opl0, 3),
-            sampler,
-            |v, w| {
-                let w = w * factor;
-                if !w.is_finite() {
-                    return;
-                }
-                chain.clear();
-                chain.push(WalkVertex::wall(ctx, ctx.x_s));
-                chain.extend(v.iter().rev());
-                let c = ChainDual::new(ctx, &chain, Last::Expected);
-                let s = dual::dot(n, c.points[chain.len() - 1]).s(rho);
-                c.scatter(scene, ctx, &s, w, grad);
-                edge -= w;
-            },
-        );
+        Self::node_link(ctx, film, adjoint, p, node, ctx.x_s, sampler, |v, w| {
+            let w = w * factor;
+            if !w.is_finite() {
+                return;
+            }
+            chain.clear();
+            chain.push(WalkVertex::wall(ctx, ctx.x_s));
+            chain.extend(v.iter().rev());
+            let c = ChainDual::new(ctx, &chain, Last::Expected);
+            let s = dual::dot(n, c.points[chain.len() - 1]).s(rho);
+            c.scatter(scene, ctx, &s, w, grad);
+            edge -= w;
+        });
         scatter(scene, ctx, node, None, Motion::edge(edge), grad);
     }
 
@@ -229,7 +224,7 @@ impl LongerPaths {
         grad: &mut VertexGrad,
     ) {
         let r = &ctx.scene.render;
-        let last = r.max_bounces.min(r.filter_bounces.unwrap_or(u32::MAX));
+        let last = r.longest_bounces();
         let scale = (ctx.power * ctx.f_wall) as f64 / self.count as f64;
         let mut vertices = Vec::with_capacity(8);
         let mut chain = Vec::with_capacity(8);
@@ -326,17 +321,8 @@ impl LongerPaths {
     ) {
         let a = &v[v.len() - 1];
         let f = &node.frame;
-        let inside = f.y - 4.0 * ctx.geom.eps * f.n;
-        let Some(hit) = ctx.geom.intersect(a.p(), (inside - a.p()).normalize()) else {
+        let Some(fg) = occluder_at(ctx.geom, a.p(), f) else {
             return;
-        };
-        if !matches!(hit.kind, SurfaceKind::Hidden { .. }) {
-            return;
-        }
-        let fg = Point {
-            flat: hit.flat,
-            bary: hit.bary,
-            x: hit.p,
         };
         let fg_vertex = WalkVertex::hidden(ctx.geom, fg.flat, fg.bary, fg.x, a.p());
         let share = bsdf_share(ctx, &a.s, false, &fg_vertex) as f64;
@@ -383,7 +369,7 @@ impl LongerPaths {
         let r = &ctx.scene.render;
         let opl0 = opl_a + (b.x - a).length() + ctx.opl_laser_leg(ctx.x_l);
         let mut sum = 0.0;
-        if r.filter_bounces.is_none_or(|f| f == bounces) && bounces <= r.max_bounces {
+        if r.keeps_bounces(bounces) {
             if let Some((g, r_l)) = connect(ctx, &start, ctx.x_l) {
                 let adj = film.adjoint_value(opl0 + r_l, adjoint);
                 if adj != 0.0 && !ctx.geom.occluded(b.x, ctx.x_l) {

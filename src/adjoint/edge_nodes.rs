@@ -250,6 +250,19 @@ impl EdgeSet {
     }
 }
 
+/// The occluder's own point at the edge point of `frame`, seen from `viewpoint`: the
+/// first hidden hit of the ray through a point just on the occluding side of the edge
+/// (the foreground of a silhouette, for the boundary terms of BSDF-sampled points).
+pub fn occluder_at(geom: &SceneGeometry, viewpoint: Vec3, frame: &EdgePoint) -> Option<Point> {
+    let inside = frame.y - 4.0 * geom.eps * frame.n;
+    let hit = geom.intersect(viewpoint, (inside - viewpoint).normalize())?;
+    matches!(hit.kind, SurfaceKind::Hidden { .. }).then_some(Point {
+        flat: hit.flat,
+        bary: hit.bary,
+        x: hit.p,
+    })
+}
+
 /// What lies behind an edge point, as far as the quadrature's refinement cares: a change
 /// along the edge is a discontinuity of the integrand.
 #[derive(Clone, Copy, Debug, PartialEq)]

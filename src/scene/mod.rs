@@ -314,6 +314,19 @@ pub struct RenderSettings {
     pub boundary_terms: bool,
 }
 
+impl RenderSettings {
+    /// The longest path kept, in bounces: `max_bounces`, or the bounce filter's length.
+    pub fn longest_bounces(&self) -> u32 {
+        self.max_bounces
+            .min(self.filter_bounces.unwrap_or(u32::MAX))
+    }
+
+    /// Whether paths of `bounces` bounces are kept (depth and bounce filter).
+    pub fn keeps_bounces(&self, bounces: u32) -> bool {
+        bounces <= self.max_bounces && self.filter_bounces.is_none_or(|f| f == bounces)
+    }
+}
+
 /// Default `subdivision` of the `tri3` model (see `BENCHMARKS.md` for its error).
 pub const DEFAULT_SUBDIVISION: f32 = 0.15;
 /// Default `max_error` of `auto`.

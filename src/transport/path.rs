@@ -164,11 +164,9 @@ pub fn sample<S: Sink>(
     if !tech.bsdf_sampling && !tech.hidden_geometry_sampling {
         return;
     }
-    let max_bounces = r.max_bounces.min(r.filter_bounces.unwrap_or(u32::MAX));
+    let max_bounces = r.longest_bounces();
     let keep = |bounces: u32, hidden_seen: bool| {
-        bounces <= r.max_bounces
-            && r.filter_bounces.is_none_or(|f| f == bounces)
-            && (hidden_seen || !r.discard_direct_paths)
+        r.keeps_bounces(bounces) && (hidden_seen || !r.discard_direct_paths)
     };
     let spot_r = ctx.scene.laser.spot_radius;
     let spot_area = PI * spot_r * spot_r;

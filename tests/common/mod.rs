@@ -280,3 +280,14 @@ pub fn tmp_dir(name: &str) -> std::path::PathBuf {
     std::fs::create_dir_all(&d).unwrap();
     d
 }
+
+/// `s` with coordinate `k` of vertex `v` of object `o` moved by `h`, and the step actually
+/// taken (after rounding to `f32`): for central differences.
+pub fn moved(s: &Scene, (o, v, k): (usize, usize, usize), h: f64) -> (Scene, f64) {
+    let mut m = s.clone();
+    let x = &mut m.objects[o].mesh.positions[v][k];
+    let old = *x;
+    *x += h as f32;
+    let step = (*x - old) as f64;
+    (m, step)
+}

@@ -22,6 +22,7 @@ pub mod irf;
 pub mod jitter;
 pub mod normal;
 mod pulse;
+mod pulse_reverse;
 
 pub use box_pulse::{splat_lanes, BoxPulse, LaneRow, PulseLanes, LANES, SPLAT_PAD};
 

@@ -33,16 +33,16 @@ const NARROW_FOR_GAUSS: f64 = 1e-2;
 /// Generic over [`Real`], so the same code yields bin values (`f64`) and their
 /// derivatives (the `tri3` adjoint).
 #[derive(Clone, Copy, Debug)]
-struct Pulse<R> {
-    t: [R; 3],
-    w: [R; 3],
-    total: R,
+pub(super) struct Pulse<R> {
+    pub(super) t: [R; 3],
+    pub(super) w: [R; 3],
+    pub(super) total: R,
     /// `[t0, t1]`: `W = ka z² (3 w0 + ga z)`, `z = t − t0`.
-    ka: R,
-    ga: R,
+    pub(super) ka: R,
+    pub(super) ga: R,
     /// `[t1, t2]`: `W = total − kb y² (3 w2 + gb y)`, `y = t2 − t`.
-    kb: R,
-    gb: R,
+    pub(super) kb: R,
+    pub(super) gb: R,
 }
 
 impl<R: Real> Pulse<R> {
@@ -50,7 +50,7 @@ impl<R: Real> Pulse<R> {
     /// mass goes to the other piece): a near-tie of two corners' OPLs would otherwise put
     /// the rounding noise of their difference in a denominator.
     #[inline]
-    fn new(t: [R; 3], w: [R; 3], area: R, narrow: f64) -> Self {
+    pub(super) fn new(t: [R; 3], w: [R; 3], area: R, narrow: f64) -> Self {
         // Sorting network on (t, w) pairs.
         let (mut t, mut w) = (t, w);
         let mut swap = |i: usize, j: usize| {
@@ -197,7 +197,67 @@ fn moments<R: Real>(e: [R; 4], lo: (R, R, R), hi: (R, R, R)) -> R {
     anti(hi) - anti(lo)
 }
 
+/// What the splat of a triangle pulse needs of the film's kernel.
+pub(super) struct PulseKernel {
+    /// σ (m); 0 for the box kernel.
+    pub(super) sigma: f64,
+    /// How far past its corners the pulse reaches (m): `GAUSS_CUTOFF σ`, or 0.
+    pub(super) margin: f64,
+    /// Pulses narrower than this (m) are splatted as a point at their weighted mean.
+    pub(super) point: f64,
+    /// Pieces narrower than this (m) are dropped ([`Pulse::new`]). Box: `NARROW` bins
+    /// (their mass moves by less). Gaussian: only empty pieces go; narrow ones take the
+    /// quadrature branch of `gauss_cdf`. Dropping them there would leave the
+    /// t2-derivative of its `W Φ((x − t2)/σ)` term uncancelled, splitting a tie's time
+    /// derivative wrongly between its corners (found by the independent Dr.Jit
+    /// reference, python/tests/test_vs_drjit.py).
+    pub(super) narrow: f64,
+}
+
+/// The bins a pulse reaches: `first_bin ..= last_bin` unclipped, `lo ..= hi` within the
+/// film.
+pub(super) struct PulseBins {
+    pub(super) first_bin: i64,
+    pub(super) last_bin: i64,
+    pub(super) lo: usize,
+    pub(super) hi: usize,
+}
+
 impl Film {
+    pub(super) fn pulse_kernel(&self) -> PulseKernel {
+        let (sigma, margin, scale) = match self.kernel {
+            KernelSpec::Box => (0.0, 0.0, self.width),
+            KernelSpec::Gaussian { sigma_opl } => {
+                let s = sigma_opl as f64;
+                (s, GAUSS_CUTOFF * s, s.min(self.width))
+            }
+        };
+        PulseKernel {
+            sigma,
+            margin,
+            point: NARROW * scale,
+            narrow: if sigma > 0.0 { 0.0 } else { NARROW * scale },
+        }
+    }
+
+    /// The bins that a pulse with corners between `t0` and `t2` (m) reaches with
+    /// `margin`; `None` if it misses the film.
+    pub(super) fn pulse_bins(&self, t0: f64, t2: f64, margin: f64) -> Option<PulseBins> {
+        let inv_width = 1.0 / self.width;
+        let first = ((t0 - margin - self.start) * inv_width).floor();
+        let last = ((t2 + margin - self.start) * inv_width).floor();
+        if last < 0.0 || first >= self.bins as f64 {
+            return None;
+        }
+        let (first_bin, last_bin) = (first as i64, last as i64);
+        Some(PulseBins {
+            first_bin,
+            last_bin,
+            lo: first_bin.max(0) as usize,
+            hi: (last_bin as usize).min(self.bins - 1),
+        })
+    }
+
     /// Adds the triangle pulse with corner OPLs `t`, corner weights `w` (linear over the
     /// triangle) and area `area` into `hist`: `area · mean(w)` in all, over the bins.
     #[inline]
@@ -215,22 +275,10 @@ impl Film {
         area: R,
         mut add: impl FnMut(usize, R),
     ) {
-        let (sigma, margin, scale) = match self.kernel {
-            KernelSpec::Box => (0.0, 0.0, self.width),
-            KernelSpec::Gaussian { sigma_opl } => {
-                let s = sigma_opl as f64;
-                (s, GAUSS_CUTOFF * s, s.min(self.width))
-            }
-        };
-        // Box: pieces narrower than NARROW bins go (their mass moves by less). Gaussian:
-        // only empty pieces go; narrow ones take the quadrature branch of `gauss_cdf`.
-        // Dropping them there would leave the t2-derivative of its `W Φ((x − t2)/σ)` term
-        // uncancelled, splitting a tie's time derivative wrongly between its corners
-        // (found by the independent Dr.Jit reference, python/tests/test_vs_drjit.py).
-        let narrow = if sigma > 0.0 { 0.0 } else { NARROW * scale };
-        let p = Pulse::new(t, w, area, narrow);
+        let k = self.pulse_kernel();
+        let p = Pulse::new(t, w, area, k.narrow);
         let [t0, t1, t2] = p.t;
-        if t2.v() - t0.v() <= NARROW * scale {
+        if t2.v() - t0.v() <= k.point {
             let wsum = p.w[0] + p.w[1] + p.w[2];
             let mean = if wsum.v() != 0.0 {
                 (t0 * p.w[0] + t1 * p.w[1] + t2 * p.w[2]) / wsum
@@ -240,15 +288,16 @@ impl Film {
             self.point_bins(mean, p.total, add);
             return;
         }
-        let inv_width = 1.0 / self.width;
-        let first = ((t0.v() - margin - self.start) * inv_width).floor();
-        let last = ((t2.v() + margin - self.start) * inv_width).floor();
-        if last < 0.0 || first >= self.bins as f64 {
+        let Some(PulseBins {
+            first_bin,
+            last_bin,
+            lo,
+            hi,
+        }) = self.pulse_bins(t0.v(), t2.v(), k.margin)
+        else {
             return;
-        }
-        let (first_bin, last_bin) = (first as i64, last as i64);
-        let lo = first_bin.max(0) as usize;
-        let hi = (last_bin as usize).min(self.bins - 1);
+        };
+        let sigma = k.sigma;
         let edge = |b: usize| self.start + b as f64 * self.width;
         if sigma == 0.0 {
             // Box: W is 0 at or before the first edge, `total` from the last bin's far edge.

@@ -23,9 +23,6 @@ use std::f64::consts::FRAC_1_PI;
 /// Derivatives with respect to the original triangle's [`TRI_PARAMS`], in `f64`.
 pub type TriDual64 = Dual<f64, TRI_PARAMS>;
 
-/// Derivatives with respect to a pulse's seven inputs (corner OPLs, corner weights, area).
-type PulseDual = Dual<f64, 7>;
-
 /// Sub-triangle `k` of `mesh` for the measurement `ctx`, whose original triangle is
 /// `parent`: calls `add(bin, content)` for every bin its pulse reaches, unscaled by the
 /// laser power and the wall's BRDF (`ctx.power f_wall²`, applied by the caller).
@@ -171,7 +168,7 @@ pub fn render_measurement(
 /// The `tri3` adjoint of measurement `ctx`: adds `Σ_b adjoint_b dH_b/dθ` for every
 /// original triangle's local parameters θ (corners, corner albedos) into `tri_grad`. Per
 /// pair: the pulse's inputs in `f64` ([`super::tri3_reverse::forward`]), the pulse
-/// reversed by seven-slot duals through its bins, then the per-pair physics reversed
+/// reversed ([`Film::triangle_bins_reverse`]), then the per-pair physics reversed
 /// ([`super::tri3_reverse::reverse`]; this module's dual-number [`pair_pulse`] is its
 /// test oracle). `parents`: every hidden triangle, once per gradient.
 #[allow(clippy::too_many_arguments)]
@@ -195,19 +192,8 @@ pub fn adjoint_measurement(
         let Some(pair) = tri3_reverse::forward(mesh, k, &parents[p], ctx) else {
             continue;
         };
-        let seed = |v: f64, i: usize| PulseDual::var(v, i);
-        let mut g = [0.0f64; 7];
-        film.triangle_bins(
-            std::array::from_fn(|i| seed(pair.tau[i], i)),
-            std::array::from_fn(|i| seed(pair.w[i], 3 + i)),
-            seed(pair.area, 6),
-            |b, v: PulseDual| {
-                let a = adjoint[b] as f64 * scale;
-                if a != 0.0 {
-                    g.iter_mut().zip(v.d).for_each(|(g, d)| *g += a * d);
-                }
-            },
-        );
+        let g =
+            film.triangle_bins_reverse(pair.tau, pair.w, pair.area, |b| adjoint[b] as f64 * scale);
         if g.iter().any(|&g| g != 0.0) {
             tri3_reverse::reverse(&pair, &parents[p], ctx, &g, &mut tri_grad[p]);
         }

@@ -23,7 +23,7 @@ pub const LANES: usize = 8;
 
 /// Pieces narrower than this (bins) are folded into the point mass `D`: the shape
 /// error is below `NARROW` bins of shift.
-const NARROW: f32 = 1e-5;
+pub(super) const NARROW: f32 = 1e-5;
 
 #[inline(always)]
 fn min(a: f32, b: f32) -> f32 {
@@ -75,16 +75,25 @@ impl BoxPulse {
     /// and area `area`. Branch-free, so a loop of these over lanes vectorises.
     #[inline(always)]
     pub fn new(t: [f32; 3], w: [f32; 3], area: f32) -> Self {
+        Self::new_ordered(t, w, area).0
+    }
+
+    /// [`BoxPulse::new`], and which input corner went to each sorted slot (as `f32`, so
+    /// the lane loops stay branch-free).
+    #[inline(always)]
+    pub fn new_ordered(t: [f32; 3], w: [f32; 3], area: f32) -> (Self, [f32; 3]) {
         let ([mut t0, mut t1, mut t2], [mut w0, mut w1, mut w2]) = (t, w);
-        let order = |ta: &mut f32, tb: &mut f32, wa: &mut f32, wb: &mut f32| {
-            let swap = *tb < *ta;
-            let (t_lo, t_hi) = (select(swap, *tb, *ta), select(swap, *ta, *tb));
-            let (w_lo, w_hi) = (select(swap, *wb, *wa), select(swap, *wa, *wb));
-            (*ta, *tb, *wa, *wb) = (t_lo, t_hi, w_lo, w_hi);
+        let [mut i0, mut i1, mut i2] = [0.0f32, 1.0, 2.0];
+        let order = |a: (&mut f32, &mut f32, &mut f32), b: (&mut f32, &mut f32, &mut f32)| {
+            let swap = *b.0 < *a.0;
+            for (x, y) in [(a.0, b.0), (a.1, b.1), (a.2, b.2)] {
+                let (lo, hi) = (select(swap, *y, *x), select(swap, *x, *y));
+                (*x, *y) = (lo, hi);
+            }
         };
-        order(&mut t0, &mut t1, &mut w0, &mut w1);
-        order(&mut t1, &mut t2, &mut w1, &mut w2);
-        order(&mut t0, &mut t1, &mut w0, &mut w1);
+        order((&mut t0, &mut w0, &mut i0), (&mut t1, &mut w1, &mut i1));
+        order((&mut t1, &mut w1, &mut i1), (&mut t2, &mut w2, &mut i2));
+        order((&mut t0, &mut w0, &mut i0), (&mut t1, &mut w1, &mut i1));
         let inv = |d: f32| select(d > NARROW, 1.0 / max(d, NARROW), 0.0);
         let (inv_span, inv_a, inv_b) = (inv(t2 - t0), inv(t1 - t0), inv(t2 - t1));
         let third_area = area * (1.0 / 3.0);
@@ -101,7 +110,7 @@ impl BoxPulse {
             d: 0.0,
         };
         p.d = third_area * (w0 + w1 + w2) - p.lower(t1 - t0) - p.upper(t2 - t1);
-        p
+        (p, [i0, i1, i2])
     }
 
     /// The sorted corners, weights and the five constants, for a structure of arrays.
@@ -255,7 +264,7 @@ pub fn splat_lanes(p: &PulseLanes, bins: usize, hist: &mut [LaneRow]) {
 /// The bins `first .. first + window` that the live lanes of `p` reach within
 /// `[0, bins)`; `None` without a live lane.
 #[inline(always)]
-fn window_of(p: &PulseLanes, bins: usize) -> Option<(usize, usize)> {
+pub(super) fn window_of(p: &PulseLanes, bins: usize) -> Option<(usize, usize)> {
     let nbins = bins as f32;
     let (mut lo, mut hi) = (nbins, 0.0f32);
     let mut any = false;

@@ -18,6 +18,7 @@ use crate::scene::{FilmSpec, KernelSpec};
 #[cfg(test)]
 mod adjoint_tests;
 mod box_pulse;
+mod box_reverse;
 pub mod irf;
 pub mod jitter;
 pub mod normal;
@@ -25,6 +26,7 @@ mod pulse;
 mod pulse_reverse;
 
 pub use box_pulse::{splat_lanes, BoxPulse, LaneRow, PulseLanes, LANES, SPLAT_PAD};
+pub use box_reverse::{reverse_lanes, LaneGrad};
 
 /// Half-width of the evaluated Gaussian support, in σ.
 pub const GAUSS_CUTOFF: f64 = 6.5;

@@ -32,7 +32,7 @@
 use super::normal::normal;
 use super::pulse::PulseBins;
 use super::Film;
-use crate::adjoint::dual::{Dual, Real};
+use crate::adjoint::dual::Dual;
 
 type PulseDual = Dual<f64, 7>;
 
@@ -45,6 +45,34 @@ pub struct Moments<R> {
     pub upper: [R; 4],
     /// `T` above `t2`.
     pub top: R,
+}
+
+/// The arithmetic [`pulse_grad`] needs: `f64` here, eight `f32` lanes in the `tri3`
+/// adjoint kernel.
+pub trait Arith:
+    Copy
+    + std::ops::Add<Output = Self>
+    + std::ops::Sub<Output = Self>
+    + std::ops::Mul<Output = Self>
+    + std::ops::Div<Output = Self>
+    + std::ops::Neg<Output = Self>
+{
+    /// A constant.
+    fn k(v: f64) -> Self;
+}
+
+impl Arith for f64 {
+    #[inline(always)]
+    fn k(v: f64) -> Self {
+        v
+    }
+}
+
+impl Arith for wide::f32x8 {
+    #[inline(always)]
+    fn k(v: f64) -> Self {
+        wide::f32x8::splat(v as f32)
+    }
 }
 
 /// `(t, w)` sorted by `t`, with `order[s]` the input corner in sorted slot `s`.
@@ -61,31 +89,32 @@ fn sorted(t: [f64; 3], w: [f64; 3]) -> ([usize; 3], [f64; 3], [f64; 3]) {
 /// `gb = (w1 − w2)/e + (w0 − w2)/d`, `total = A (w0 + w1 + w2)/3`. Generic, so the lanes
 /// of the `tri3` adjoint kernel (`f32`) and the `f64` splat share it.
 #[inline(always)]
-pub fn pulse_grad<R: Real>(t: [R; 3], w: [R; 3], area: R, m: &Moments<R>) -> [R; 7] {
+pub fn pulse_grad<R: Arith>(t: [R; 3], w: [R; 3], area: R, m: &Moments<R>) -> [R; 7] {
     let ([t0, t1, t2], [w0, w1, w2]) = (t, w);
-    let one = R::c(1.0);
+    let k = R::k;
+    let one = k(1.0);
     let (i1, ie, id) = (one / (t1 - t0), one / (t2 - t1), one / (t2 - t0));
-    let third = area.s(1.0 / 3.0);
+    let third = area * k(1.0 / 3.0);
     let (ka, kb) = (third * i1 * id, third * ie * id);
     let ga = (w1 - w0) * i1 + (w2 - w0) * id;
     let gb = (w1 - w2) * ie + (w0 - w2) * id;
     let ([_, l1, l2, l3], [u0, u1, u2, u3]) = (m.lower, m.upper);
     // ∂F/∂ka, ∂F/∂ga, ∂F/∂kb, ∂F/∂gb, ∂F/∂total.
-    let (f_ka, f_ga) = (w0.s(3.0) * l2 + ga * l3, ka * l3);
-    let (f_kb, f_gb) = (-(w2.s(3.0) * u2 + gb * u3), -(kb * u3));
+    let (f_ka, f_ga) = (k(3.0) * w0 * l2 + ga * l3, ka * l3);
+    let (f_kb, f_gb) = (-(k(3.0) * w2 * u2 + gb * u3), -(kb * u3));
     let f_total = u0 + m.top;
     // The powers' own dependence on t0 (z = t − t0) and t2 (y = t2 − t).
-    let f_t0 = -(ka * (w0.s(6.0) * l1 + ga.s(3.0) * l2));
-    let f_t2 = -(kb * (w2.s(6.0) * u1 + gb.s(3.0) * u2));
+    let f_t0 = -(ka * (k(6.0) * w0 * l1 + k(3.0) * ga * l2));
+    let f_t2 = -(kb * (k(6.0) * w2 * u1 + k(3.0) * gb * u2));
     let (a1, ad) = ((w1 - w0) * i1 * i1, (w2 - w0) * id * id);
     let (be, bd) = ((w1 - w2) * ie * ie, (w0 - w2) * id * id);
     let g_t0 = f_t0 + f_ka * ka * (i1 + id) + f_ga * (a1 + ad) + f_kb * kb * id + f_gb * bd;
     let g_t1 = -(f_ka * ka * i1) - f_ga * a1 + f_kb * kb * ie + f_gb * be;
     let g_t2 = f_t2 - f_ka * ka * id - f_ga * ad - f_kb * kb * (ie + id) - f_gb * (be + bd);
-    let g_w0 = ka.s(3.0) * l2 - f_ga * (i1 + id) + f_gb * id + f_total * third;
+    let g_w0 = k(3.0) * ka * l2 - f_ga * (i1 + id) + f_gb * id + f_total * third;
     let g_w1 = f_ga * i1 + f_gb * ie + f_total * third;
-    let g_w2 = f_ga * id - f_gb * (ie + id) - kb.s(3.0) * u2 + f_total * third;
-    let g_a = (f_ka * ka + f_kb * kb) / area + f_total * (w0 + w1 + w2).s(1.0 / 3.0);
+    let g_w2 = f_ga * id - f_gb * (ie + id) - k(3.0) * kb * u2 + f_total * third;
+    let g_a = (f_ka * ka + f_kb * kb) / area + f_total * (w0 + w1 + w2) * k(1.0 / 3.0);
     [g_t0, g_t1, g_t2, g_w0, g_w1, g_w2, g_a]
 }
 

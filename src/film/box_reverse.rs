@@ -66,8 +66,8 @@ pub fn reverse_lanes(
         top: zero,
     };
     let mut prev = 0.0f32;
-    for k in first..=first + window {
-        let next = if k < first + window { adj[k] } else { 0.0 };
+    let edges = adj[first..first + window].iter().chain([&0.0]);
+    for (k, &next) in (first..).zip(edges) {
         let alpha = prev - next;
         prev = next;
         if alpha == 0.0 {
@@ -138,8 +138,8 @@ mod tests {
                 }
                 let p = BoxPulse::new(t, [1.0, 0.5 + 0.1 * s, 2.0], 0.1 + 0.01 * s);
                 lanes.set(j, &p, j != 6);
-                for i in 0..3 {
-                    w[i][j] = p.w[i];
+                for (w, pw) in w.iter_mut().zip(p.w) {
+                    w[j] = pw;
                 }
                 area[j] = 0.1 + 0.01 * s;
                 pulses.push(p);

@@ -159,14 +159,9 @@ mod tests {
                     |b| adj[b] as f64,
                 );
                 let scale = want.iter().fold(1e-30f64, |m, g| m.max(g.abs()));
-                for i in 0..7 {
-                    let err = (got.g[i][j] as f64 - want[i]).abs() / scale;
-                    assert!(
-                        err < 2e-5,
-                        "lane {j} slot {i}: {} vs {} ({err:e})",
-                        got.g[i][j],
-                        want[i]
-                    );
+                for (i, (got, want)) in got.g.iter().map(|g| g[j]).zip(want).enumerate() {
+                    let err = (got as f64 - want).abs() / scale;
+                    assert!(err < 2e-5, "lane {j} slot {i}: {got} vs {want} ({err:e})");
                 }
             }
         }

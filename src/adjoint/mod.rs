@@ -48,8 +48,7 @@ use crate::scene::{KernelSpec, Model, Scene};
 use crate::transport::mc3::TRI_PARAMS;
 use crate::transport::path::PathScratch;
 use crate::transport::tri3::Tri3Mesh;
-use crate::transport::tri3_exact;
-use crate::transport::tri3_reverse::ParentGeom;
+use crate::transport::tri3_adjoint;
 use crate::transport::{
     run_samples_with, Contribution, HiddenGrad, MeasurementCtx, Progress, RenderOptions, Sink,
     BLOCK_SPP,
@@ -124,13 +123,7 @@ pub fn gradient(
 ) -> Result<Gradient> {
     let model = opts.model;
     crate::transport::gate::check(scene, opts, crate::transport::gate::Pass::Gradient)?;
-    let tri3 = (model == Model::Tri3).then(|| {
-        let mesh = Tri3Mesh::build(scene, geom, opts.subdivision);
-        (
-            mesh,
-            geom.hidden.iter().map(ParentGeom::new).collect::<Vec<_>>(),
-        )
-    });
+    let tri3 = (model == Model::Tri3).then(|| Tri3Mesh::build(scene, geom, opts.subdivision));
     let film = Film::new(&scene.film);
     let (measurements, bins) = (scene.num_measurements(), film.bins);
     if adjoint.len() != measurements * bins {
@@ -165,25 +158,14 @@ pub fn gradient(
                 if let (Some(b), Some(g), true) = (&edges, &mut vertex_grad, ctx.legs_visible) {
                     b.measurement(scene, &ctx, m, &film, adj, &mut views, g);
                 }
-                if !ctx.legs_visible {
-                    if let Some(p) = progress {
-                        let work = tri3.as_ref().map_or(spp as u64, |t| t.0.len() as u64);
-                        p.work_done.fetch_add(work, Ordering::Relaxed);
-                    }
+                if tri3.is_some() {
+                    // The interior part runs after this loop, blocks outer
+                    // (`tri3_adjoint`), and counts the progress.
                     continue;
                 }
-                if let Some((mesh, duals)) = &tri3 {
-                    tri3_exact::adjoint_measurement(
-                        mesh,
-                        duals,
-                        &ctx,
-                        &film,
-                        opts.visibility,
-                        adj,
-                        &mut tri_grad,
-                    );
+                if !ctx.legs_visible {
                     if let Some(p) = progress {
-                        p.work_done.fetch_add(mesh.len() as u64, Ordering::Relaxed);
+                        p.work_done.fetch_add(spp as u64, Ordering::Relaxed);
                     }
                     continue;
                 }
@@ -221,7 +203,17 @@ pub fn gradient(
     if progress.is_some_and(|p| p.cancel.load(Ordering::Relaxed)) {
         return Err(Error::Cancelled);
     }
-    let mut tri_grad = vec![[0.0f64; TRI_PARAMS]; tris];
+    let mut tri_grad = match &tri3 {
+        Some(mesh) => {
+            let ctxs: Vec<MeasurementCtx> = (0..measurements)
+                .into_par_iter()
+                .map(|m| MeasurementCtx::new(scene, geom, &film, m))
+                .collect();
+            tri3_adjoint::gradient(mesh, tris, &ctxs, &film, opts.visibility, adjoint, progress)
+                .ok_or(Error::Cancelled)?
+        }
+        None => vec![[0.0f64; TRI_PARAMS]; tris],
+    };
     let mut vertex_grad = zero_vertex_grad(scene);
     let (mut contributions, mut truncated, mut nodes) = (0, 0, 0);
     for part in partial {

@@ -19,6 +19,7 @@ pub mod path;
 pub(crate) mod path_step;
 pub mod render;
 pub mod tri3;
+pub mod tri3_adjoint;
 pub mod tri3_exact;
 pub mod tri3_kernel;
 pub mod tri3_reverse;

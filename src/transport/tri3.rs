@@ -156,7 +156,7 @@ impl Tri3Mesh {
     /// measurement of `frame`, within `[0, bins)`: the OPL range of the bounding box
     /// from both wall points, widened by the curvature shift (at most `1.5` longest
     /// edges, since `|τ(c) − τ_i| ≤ 2 |c − v_i|`) and two bins.
-    fn reach(&self, frame: &tri3_kernel::Frame, bins: usize) -> (usize, usize) {
+    pub(crate) fn reach(&self, frame: &tri3_kernel::Frame, bins: usize) -> (usize, usize) {
         let (lo, hi) = self.bounds;
         let near = |x: Vec3| f64::from((x.clamp(lo, hi) - x).length());
         let far = |x: Vec3| f64::from((x - lo).abs().max((x - hi).abs()).length());
@@ -225,18 +225,31 @@ impl Tri3Mesh {
         v: Visibility,
         parents: &mut [u8],
     ) -> bool {
+        self.visible_at(k, ctx, v, parents, self.parent[k] as usize)
+    }
+
+    /// [`Tri3Mesh::visible`] with the parent's entry of `parents` at `slot` (a cache over a
+    /// subset of the parents, filled with `UNKNOWN` = 0 per measurement).
+    pub fn visible_at(
+        &self,
+        k: usize,
+        ctx: &MeasurementCtx,
+        v: Visibility,
+        parents: &mut [u8],
+        slot: usize,
+    ) -> bool {
         match v {
             Visibility::None => true,
             Visibility::Centroid => {
-                let p = self.parent[k] as usize;
-                if parents[p] == UNKNOWN {
-                    parents[p] = if seen(ctx, self.parent_centroid[p]) {
+                let (p, cached) = (self.parent[k] as usize, &mut parents[slot]);
+                if *cached == UNKNOWN {
+                    *cached = if seen(ctx, self.parent_centroid[p]) {
                         SEEN
                     } else {
                         HIDDEN
                     };
                 }
-                parents[p] == SEEN
+                *cached == SEEN
             }
             Visibility::Subtriangle => seen(ctx, self.centroid[k]),
         }

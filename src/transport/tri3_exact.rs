@@ -199,3 +199,24 @@ pub fn adjoint_measurement(
         }
     }
 }
+
+/// The `tri3` interior gradient through [`adjoint_measurement`] (`f64`, one pair at a
+/// time): the oracle the lane kernel (`tri3_adjoint`) is tested against.
+pub fn gradient_f64(
+    mesh: &Tri3Mesh,
+    geom: &crate::geometry::SceneGeometry,
+    ctxs: &[MeasurementCtx],
+    film: &Film,
+    visibility: crate::scene::Visibility,
+    adjoint: &[f32],
+) -> Vec<[f64; TRI_PARAMS]> {
+    let parents: Vec<ParentGeom> = geom.hidden.iter().map(ParentGeom::new).collect();
+    let mut out = vec![[0.0; TRI_PARAMS]; parents.len()];
+    for (m, ctx) in ctxs.iter().enumerate() {
+        if ctx.legs_visible {
+            let adj = &adjoint[m * film.bins..(m + 1) * film.bins];
+            adjoint_measurement(mesh, &parents, ctx, film, visibility, adj, &mut out);
+        }
+    }
+    out
+}

@@ -264,7 +264,7 @@ pub fn splat_lanes(p: &PulseLanes, bins: usize, hist: &mut [LaneRow]) {
 /// The bins `first .. first + window` that the live lanes of `p` reach within
 /// `[0, bins)`; `None` without a live lane.
 #[inline(always)]
-pub(super) fn window_of(p: &PulseLanes, bins: usize) -> Option<(usize, usize)> {
+fn window_of(p: &PulseLanes, bins: usize) -> Option<(usize, usize)> {
     let nbins = bins as f32;
     let (mut lo, mut hi) = (nbins, 0.0f32);
     let mut any = false;

@@ -23,7 +23,8 @@
 
 use super::mc3::TRI_PARAMS;
 use super::tri3::{Tri3Mesh, WINDOW_MIN_BINS};
-use super::tri3_kernel::{self, BlockGrad, PulseBlock, TriBlock, W};
+use super::tri3_kernel::{self, Frame, PulseBlock, TriBlock, W};
+use super::tri3_physics::{centroid, Legs, Plane, Wall};
 use super::{MeasurementCtx, Progress};
 use crate::film::{reverse_lanes, Film};
 use crate::scene::{KernelSpec, Visibility};
@@ -31,6 +32,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 use std::f64::consts::FRAC_1_PI;
 use std::sync::atomic::Ordering;
+use wide::{f32x8, CmpEq, CmpGt, CmpLt};
 
 /// Blocks per work item: few enough that the measurements' frames stay warm, enough
 /// items to balance two to a few dozen threads.
@@ -97,7 +99,6 @@ fn task(
     let gaussian = matches!(film.kernel, KernelSpec::Gaussian { .. });
     let bins = film.bins;
     let mut pulses = PulseBlock::default();
-    let mut g = [[0.0f32; W]; 7];
     for (m, ctx) in ctxs.iter().enumerate() {
         if let Some(p) = progress {
             if p.cancel.load(Ordering::Relaxed) {
@@ -169,23 +170,130 @@ fn task(
                     sorted[s][j] = v as f32;
                 }
             }
-            // Sorted slots to corners, and the measurement's scale.
-            for j in 0..W {
-                for s in 0..3 {
-                    let i = pulses.order[s][j] as usize;
-                    g[i][j] = sorted[s][j] * scale;
-                    g[3 + i][j] = sorted[3 + s][j] * scale;
-                }
-                g[6][j] = sorted[6][j] * scale;
-            }
+            let order = &pulses.order;
             if frame.confocal() {
-                block.reverse::<true>(&frame, &g, &mut acc[b]);
+                reverse::<true>(block, &frame, &sorted, order, scale, &mut acc[b]);
             } else {
-                block.reverse::<false>(&frame, &g, &mut acc[b]);
+                reverse::<false>(block, &frame, &sorted, order, scale, &mut acc[b]);
             }
         }
     }
     acc
+}
+
+/// `∂L/∂` of each lane's sub-triangle's own quantities, over a gradient's measurements
+/// (`f64`: each is a sum over all of them).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct BlockGrad {
+    /// `corner[i][axis][lane]`.
+    pub corner: [[[f64; W]; 3]; 3],
+    /// Corner `ρ/π`.
+    pub brdf: [[f64; W]; 3],
+    pub normal: [[f64; W]; 3],
+    /// The plane offset `n·v` (m).
+    pub plane: [f64; W],
+    pub area: [f64; W],
+}
+
+/// The reverse of [`TriBlock::pulses`] for all eight lanes at once, through the same
+/// physics ([`super::tri3_physics`] in `f32x8`): given each lane's `∂L/∂(t, w, A)` of its
+/// pulse in sorted slots (`sorted`, `t` in bins), the sort's `order` and the measurement's
+/// `scale`, adds `∂L/∂` of each sub-triangle's corners, corner `ρ/π`, normal, plane offset
+/// and area into `acc` (the last three chained to the corners by [`chain`]). The chain
+/// rule of the forward's equations, written out:
+///
+/// - shift: `S = Σ g_τi`, `∂L/∂τ'_i = g_τi − S/4`, `∂L/∂τ(c) = 3S/4`;
+/// - `∂τ'_i/∂v_i = −(d_l/r_l + d_s/r_s)/width` (likewise the centroid, `1/3` per corner);
+/// - `w_i = G (ρ_i/π) k_i` with `k_i` the legs' weight: `∂k_i/∂v_i = k_i (n_w/c_l +
+///   4 d_l/r_l² + n_w/c_s + 4 d_s/r_s²)` (retroreflective: the first two);
+/// - `G = |p_l p_s|`: `∂G/∂p_l = sgn(p_l p_s) p_s`; `∂p/∂n = x`, `∂p/∂d = −1`.
+#[allow(clippy::needless_range_loop)] // corners and axes by index, as the equations
+fn reverse<const CONFOCAL: bool>(
+    block: &TriBlock,
+    f: &Frame,
+    sorted: &[[f32; W]; 7],
+    order: &[[f32; W]; 3],
+    scale: f32,
+    acc: &mut BlockGrad,
+) {
+    let v = |a: &[f32; W]| f32x8::new(*a);
+    let wall = Wall::<f32x8>::new(f);
+    let (zero, one) = (f32x8::ZERO, f32x8::ONE);
+    // Sorted slots to corners.
+    let mut g_t = [zero; 3];
+    let mut g_w = [zero; 3];
+    for s in 0..3 {
+        let o = v(&order[s]);
+        for i in 0..3 {
+            let here = o.cmp_eq(f32x8::splat(i as f32));
+            g_t[i] += here & v(&sorted[s]);
+            g_w[i] += here & v(&sorted[3 + s]);
+        }
+    }
+    let scale = f32x8::splat(scale);
+    let (g_t, g_w, g_a) = (
+        g_t.map(|g| g * scale),
+        g_w.map(|g| g * scale),
+        v(&sorted[6]) * scale,
+    );
+    let retro = v(&block.retro).cmp_gt(zero);
+    let two_sided = v(&block.two_sided).cmp_gt(zero);
+    let n = [0, 1, 2].map(|k| v(&block.n[k]));
+    let plane = Plane::new::<CONFOCAL>(&wall, n, v(&block.plane), two_sided, retro);
+    let corners: [[f32x8; 3]; 3] = std::array::from_fn(|i| [0, 1, 2].map(|k| v(&block.p[i][k])));
+    let sum = g_t[0] + g_t[1] + g_t[2];
+    let mut g_factor = zero;
+    let mut g_v = [[zero; 3]; 3];
+    for i in 0..3 {
+        let legs = Legs::new::<CONFOCAL>(&wall, corners[i]);
+        let g_tau = (g_t[i] - sum * f32x8::splat(0.25)) * wall.inv_width;
+        let (u_l, u_s) = (one / legs.r_l, one / legs.r_s);
+        let k_i = legs.weight(retro);
+        let brdf = v(&block.brdf[i]);
+        g_factor += g_w[i] * brdf * k_i;
+        let g_k = g_w[i] * plane.factor;
+        acc_add(&mut acc.brdf[i], g_k * k_i);
+        let g_kk = g_k * brdf * k_i;
+        // 1/c only where the corner is in front (k_i = 0 elsewhere).
+        let front = legs.front();
+        let a_l = front.blend(one / legs.c_l, zero);
+        let b_l = f32x8::splat(4.0) / legs.r2_l;
+        let a_s = (front & !retro).blend(one / legs.c_s, zero);
+        let b_s = retro.blend(zero, f32x8::splat(4.0) / legs.r2_s);
+        for k in 0..3 {
+            g_v[i][k] = -(legs.d_l[k] * u_l + legs.d_s[k] * u_s) * g_tau
+                + g_kk * (wall.n_w[k] * (a_l + a_s) + legs.d_l[k] * b_l + legs.d_s[k] * b_s);
+        }
+    }
+    // The centroid's OPL, a third per corner.
+    let c = Legs::new::<CONFOCAL>(&wall, centroid(corners));
+    let g_c = sum * f32x8::splat(0.75 / 3.0) * wall.inv_width;
+    let (u_l, u_s) = (one / c.r_l, one / c.r_s);
+    for i in 0..3 {
+        for k in 0..3 {
+            let g = g_v[i][k] - (c.d_l[k] * u_l + c.d_s[k] * u_s) * g_c;
+            acc_add(&mut acc.corner[i][k], g);
+        }
+    }
+    // The plane factor G (0 where the triangle does not face the wall points).
+    let sgn = |x: f32x8| x.cmp_gt(zero).blend(one, x.cmp_lt(zero).blend(-one, zero));
+    let g_factor = plane.facing.blend(g_factor, zero);
+    let s = sgn(plane.p_l * plane.p_s);
+    let g_pl = retro.blend(g_factor * sgn(plane.p_l), g_factor * s * plane.p_s);
+    let g_ps = retro.blend(zero, g_factor * s * plane.p_l);
+    for k in 0..3 {
+        acc_add(&mut acc.normal[k], g_pl * wall.x_l[k] + g_ps * wall.x_s[k]);
+    }
+    acc_add(&mut acc.plane, -(g_pl + g_ps));
+    acc_add(&mut acc.area, g_a);
+}
+
+/// `acc[j] += x[j]` in `f64`.
+#[inline(always)]
+fn acc_add(acc: &mut [f64; W], x: f32x8) {
+    for (a, x) in acc.iter_mut().zip(x.to_array()) {
+        *a += f64::from(x);
+    }
 }
 
 /// Sub-triangle `k` (lane `j` of `acc`): its normal, plane offset and area chained to its
@@ -268,7 +376,8 @@ mod tests {
                     let mut g = [[0.0f32; W]; 7];
                     (0..7).for_each(|i| g[i][j] = gk[i]);
                     let mut acc = BlockGrad::default();
-                    mesh.blocks[b].reverse::<true>(&frame, &g, &mut acc);
+                    let order = [0.0, 1.0, 2.0].map(|i| [i; W]);
+                    reverse::<true>(&mesh.blocks[b], &frame, &g, &order, 1.0, &mut acc);
                     let mut got = [0.0; TRI_PARAMS];
                     chain(&mesh, k, &acc, j, &mut got);
                     let scale = want.iter().fold(1e-300f64, |m, g| m.max(g.abs()));

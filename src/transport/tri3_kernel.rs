@@ -18,6 +18,7 @@
 //! - the curvature shift of the pulse: `0.75 (τ(c) − mean τ_i)`, `c` the centroid;
 //! - the pulse constants of [`BoxPulse`].
 
+use super::tri3_physics::{centroid, Legs, Plane, Wall};
 use crate::film::{BoxPulse, Film, PulseLanes, LANES};
 use glam::Vec3;
 
@@ -65,12 +66,6 @@ impl Frame {
     pub fn confocal(&self) -> bool {
         self.x_l == self.x_s
     }
-
-    /// OPL in bins from the film's start of a point at distances `r_l`, `r_s`.
-    #[inline(always)]
-    fn bins(&self, r_l: f32, r_s: f32) -> f32 {
-        (r_l + r_s + self.offset) * self.inv_width
-    }
 }
 
 /// Eight pulses: the box splat's lanes, and the corner weights and areas that the
@@ -85,157 +80,34 @@ pub struct PulseBlock {
     pub order: [Lanes; 3],
 }
 
-#[inline(always)]
-fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0].mul_add(b[0], a[1].mul_add(b[1], a[2] * b[2]))
-}
-
-#[inline(always)]
-fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-/// A corner's legs to the wall points: `d = x − v`, `r²`, `r`, and the wall cosine term
-/// `c = −n_w·d` (module doc), for the laser spot and the sensor point.
-#[derive(Clone, Copy)]
-struct Legs {
-    d_l: [f32; 3],
-    r2_l: f32,
-    r_l: f32,
-    c_l: f32,
-    d_s: [f32; 3],
-    r2_s: f32,
-    r_s: f32,
-    c_s: f32,
-}
-
-impl Legs {
-    /// `CONFOCAL` (`x_l == x_s`) skips the second distance.
-    #[inline(always)]
-    fn new<const CONFOCAL: bool>(f: &Frame, v: [f32; 3]) -> Legs {
-        let (x_l, x_s, n_w) = (f.x_l.to_array(), f.x_s.to_array(), f.n_w.to_array());
-        let d_l = sub(x_l, v);
-        let r2_l = dot(d_l, d_l);
-        let (r_l, c_l) = (r2_l.sqrt(), -dot(n_w, d_l));
-        if CONFOCAL {
-            return Legs {
-                d_l,
-                r2_l,
-                r_l,
-                c_l,
-                d_s: d_l,
-                r2_s: r2_l,
-                r_s: r_l,
-                c_s: c_l,
-            };
-        }
-        let d_s = sub(x_s, v);
-        let r2_s = dot(d_s, d_s);
-        Legs {
-            d_l,
-            r2_l,
-            r_l,
-            c_l,
-            d_s,
-            r2_s,
-            r_s: r2_s.sqrt(),
-            c_s: -dot(n_w, d_s),
-        }
-    }
-
-    /// In front of the wall at both wall points.
-    #[inline(always)]
-    fn front(&self) -> bool {
-        (self.c_l > 0.0) & (self.c_s > 0.0)
-    }
-
-    /// The corner weight without `ρ/π` and the plane factor:
-    /// `c_l c_s / (r_l² r_s²)²`, or `c_l / r_l⁴` for a retroreflective triangle (the return
-    /// leg's `c_s / r_s⁴` is 1, and its `p_s` below); 0 behind the wall.
-    #[inline(always)]
-    fn weight(&self, retro: bool) -> f32 {
-        let back_leg = if retro {
-            1.0
-        } else {
-            self.c_s / (self.r2_s * self.r2_s)
-        };
-        if self.front() {
-            self.c_l * back_leg / (self.r2_l * self.r2_l)
-        } else {
-            0.0
-        }
-    }
-}
-
-/// The plane terms of lane `j`: `p_l = n·x_l − d`, `p_s`, and the factor `|p_l p_s|`
-/// (`|p_l|` retroreflective), 0 unless the triangle faces both wall points.
-#[derive(Clone, Copy)]
-struct Plane {
-    p_l: f32,
-    p_s: f32,
-    factor: f32,
-}
-
 impl TriBlock {
     #[inline(always)]
     fn corner(&self, i: usize, j: usize) -> [f32; 3] {
         [self.p[i][0][j], self.p[i][1][j], self.p[i][2][j]]
     }
 
-    #[inline(always)]
-    fn plane<const CONFOCAL: bool>(&self, f: &Frame, j: usize) -> Plane {
-        let n = [self.n[0][j], self.n[1][j], self.n[2][j]];
-        let p_l = dot(n, f.x_l.to_array()) - self.plane[j];
-        let p_s = if CONFOCAL {
-            p_l
-        } else {
-            dot(n, f.x_s.to_array()) - self.plane[j]
-        };
-        let prod = p_l * p_s;
-        let facing = if self.two_sided[j] > 0.0 {
-            prod > 0.0
-        } else {
-            (p_l > 0.0) & (p_s > 0.0)
-        };
-        let factor = if self.retro[j] > 0.0 {
-            p_l.abs()
-        } else {
-            prod.abs()
-        };
-        Plane {
-            p_l,
-            p_s,
-            factor: if facing { factor } else { 0.0 },
-        }
-    }
-
-    /// The centroid's OPL in bins, and its legs.
-    #[inline(always)]
-    fn centroid<const CONFOCAL: bool>(&self, f: &Frame, j: usize) -> (f32, Legs) {
-        let (a, b, c) = (self.corner(0, j), self.corner(1, j), self.corner(2, j));
-        let centroid = [0, 1, 2].map(|k| (a[k] + b[k] + c[k]) * (1.0 / 3.0));
-        let legs = Legs::new::<CONFOCAL>(f, centroid);
-        (f.bins(legs.r_l, legs.r_s), legs)
-    }
-
     /// The eight pulses of this block for one measurement. `CONFOCAL` (`x_l == x_s`)
     /// skips the second distance.
     #[inline]
-    #[allow(clippy::needless_range_loop)] // lanes and axes by index, as the equations
+    #[allow(clippy::needless_range_loop)] // lanes by index, as the equations
     pub fn pulses<const CONFOCAL: bool>(&self, f: &Frame, out: &mut PulseBlock) {
+        let wall = Wall::<f32>::new(f);
         for j in 0..W {
             let retro = self.retro[j] > 0.0;
             let mut tau = [0.0f32; 3];
             let mut vw = [0.0f32; 3];
             for i in 0..3 {
-                let legs = Legs::new::<CONFOCAL>(f, self.corner(i, j));
-                tau[i] = f.bins(legs.r_l, legs.r_s);
+                let legs = Legs::new::<CONFOCAL>(&wall, self.corner(i, j));
+                tau[i] = wall.bins(legs.r_l, legs.r_s);
                 vw[i] = self.brdf[i][j] * legs.weight(retro);
             }
-            let g = self.plane::<CONFOCAL>(f, j).factor;
+            let n = [self.n[0][j], self.n[1][j], self.n[2][j]];
+            let two_sided = self.two_sided[j] > 0.0;
+            let g = Plane::new::<CONFOCAL>(&wall, n, self.plane[j], two_sided, retro).factor;
             let w = vw.map(|v| g * v);
             // Curvature shift: the pulse's mean moves to (1/12) Σ τ_i + (3/4) τ(c).
-            let tau_c = self.centroid::<CONFOCAL>(f, j).0;
+            let c = Legs::new::<CONFOCAL>(&wall, centroid([0, 1, 2].map(|i| self.corner(i, j))));
+            let tau_c = wall.bins(c.r_l, c.r_s);
             let shift = 0.75 * (tau_c - (tau[0] + tau[1] + tau[2]) * (1.0 / 3.0));
             let (p, order) = BoxPulse::new_ordered(tau.map(|t| t + shift), w, self.area[j]);
             let live = (w[0] + w[1] + w[2] > 0.0) & (p.t[2] >= f.lo) & (p.t[0] < f.hi);
@@ -247,101 +119,6 @@ impl TriBlock {
             out.area[j] = self.area[j];
         }
     }
-
-    /// The reverse of [`TriBlock::pulses`]: given, per lane, `g = ∂L/∂(τ_0, τ_1, τ_2, w_0,
-    /// w_1, w_2, A)` of its pulse (corner order, `τ` in bins with the shift), adds `∂L/∂`
-    /// of the sub-triangle's own corners, corner `ρ/π`, normal, plane offset and area into
-    /// `acc` (the latter three are chained to the corners once per gradient,
-    /// `tri3_adjoint`). The chain rule of the module doc's equations, written out:
-    ///
-    /// - shift: `S = Σ g_τi`, `∂L/∂τ'_i = g_τi − S/4`, `∂L/∂τ(c) = 3S/4`;
-    /// - `∂τ'_i/∂v_i = −(d_l/r_l + d_s/r_s)/width` (likewise the centroid, `1/3` per corner);
-    /// - `w_i = G (ρ_i/π) k_i` with `k_i` the legs' weight: `∂k_i/∂v_i = k_i (n_w/c_l +
-    ///   4 d_l/r_l² + n_w/c_s + 4 d_s/r_s²)` (retroreflective: the first two);
-    /// - `G = |p_l p_s|`: `∂G/∂p_l = sgn(p_l p_s) p_s`; `∂p/∂n = x`, `∂p/∂d = −1`.
-    #[allow(clippy::needless_range_loop)] // lanes and axes by index, as the equations
-    pub fn reverse<const CONFOCAL: bool>(&self, f: &Frame, g: &[[f32; W]; 7], acc: &mut BlockGrad) {
-        let (x_l, x_s, n_w) = (f.x_l.to_array(), f.x_s.to_array(), f.n_w.to_array());
-        for j in 0..W {
-            let gl: [f32; 7] = std::array::from_fn(|k| g[k][j]);
-            if gl.iter().all(|&v| v == 0.0) {
-                continue;
-            }
-            let retro = self.retro[j] > 0.0;
-            let plane = self.plane::<CONFOCAL>(f, j);
-            let sum = gl[0] + gl[1] + gl[2];
-            let mut g_factor = 0.0f32;
-            let mut g_v = [[0.0f32; 3]; 3];
-            for (i, g_v) in g_v.iter_mut().enumerate() {
-                let legs = Legs::new::<CONFOCAL>(f, self.corner(i, j));
-                let g_tau = (gl[i] - 0.25 * sum) * f.inv_width;
-                let (u_l, u_s) = (1.0 / legs.r_l, 1.0 / legs.r_s);
-                for k in 0..3 {
-                    g_v[k] = -(legs.d_l[k] * u_l + legs.d_s[k] * u_s) * g_tau;
-                }
-                let k_i = legs.weight(retro);
-                let g_w = gl[3 + i];
-                g_factor += g_w * self.brdf[i][j] * k_i;
-                let g_k = g_w * plane.factor;
-                if g_k != 0.0 && k_i != 0.0 {
-                    acc.brdf[i][j] += f64::from(g_k * k_i);
-                    let g_kk = g_k * self.brdf[i][j] * k_i;
-                    let (a_l, b_l) = (1.0 / legs.c_l, 4.0 / legs.r2_l);
-                    let (a_s, b_s) = if retro {
-                        (0.0, 0.0)
-                    } else {
-                        (1.0 / legs.c_s, 4.0 / legs.r2_s)
-                    };
-                    for k in 0..3 {
-                        g_v[k] +=
-                            g_kk * (n_w[k] * (a_l + a_s) + legs.d_l[k] * b_l + legs.d_s[k] * b_s);
-                    }
-                }
-            }
-            // The centroid's OPL, a third per corner.
-            let (_, c) = self.centroid::<CONFOCAL>(f, j);
-            let g_c = 0.75 * sum * f.inv_width * (1.0 / 3.0);
-            let (u_l, u_s) = (1.0 / c.r_l, 1.0 / c.r_s);
-            for g_v in &mut g_v {
-                for k in 0..3 {
-                    g_v[k] -= (c.d_l[k] * u_l + c.d_s[k] * u_s) * g_c;
-                }
-            }
-            for (i, g_v) in g_v.iter().enumerate() {
-                for k in 0..3 {
-                    acc.corner[i][k][j] += f64::from(g_v[k]);
-                }
-            }
-            // The plane factor G.
-            if plane.factor != 0.0 && g_factor != 0.0 {
-                let (g_pl, g_ps) = if retro {
-                    (g_factor * plane.p_l.signum(), 0.0)
-                } else {
-                    let sgn = (plane.p_l * plane.p_s).signum();
-                    (g_factor * sgn * plane.p_s, g_factor * sgn * plane.p_l)
-                };
-                for k in 0..3 {
-                    acc.normal[k][j] += f64::from(g_pl * x_l[k] + g_ps * x_s[k]);
-                }
-                acc.plane[j] -= f64::from(g_pl + g_ps);
-            }
-            acc.area[j] += f64::from(gl[6]);
-        }
-    }
-}
-
-/// `∂L/∂` of each lane's sub-triangle's own quantities, over a gradient's measurements
-/// (`f64`: each is a sum over all of them).
-#[derive(Clone, Copy, Debug, Default)]
-pub struct BlockGrad {
-    /// `corner[i][axis][lane]`.
-    pub corner: [[[f64; W]; 3]; 3],
-    /// Corner `ρ/π`.
-    pub brdf: [[f64; W]; 3],
-    pub normal: [[f64; W]; 3],
-    /// The plane offset `n·v` (m).
-    pub plane: [f64; W],
-    pub area: [f64; W],
 }
 
 /// An order of the triangles with centroids `centroid` such that each run of [`W`] is a

@@ -269,6 +269,7 @@ pub fn bench_grad(args: &BenchArgs) -> umbra::Result<()> {
             );
         }
     }
+    tri3_ratios(args)?;
     println!("\n## Gradient pass: peak memory against spp (a fresh process each)\n");
     println!("| model | spp | peak RSS MB |");
     println!("|---|---|---|");
@@ -302,6 +303,53 @@ pub fn bench_grad(args: &BenchArgs) -> umbra::Result<()> {
         ratios.push(format!("{model} {:.3}", hi / lo));
     }
     println!("\nLargest / smallest: {}", ratios.join(", "));
+    Ok(())
+}
+
+/// The `tri3` gradient against its render (issue 19) on the default scene, the accuracy
+/// benchmark's sphere and the 10k-triangle sheet, with the box kernel and a Gaussian of
+/// 1.5 bins, each scene's own visibility mode.
+fn tri3_ratios(args: &BenchArgs) -> umbra::Result<()> {
+    use umbra::bench;
+    use umbra::scene::KernelSpec;
+    println!("\n## tri3: gradient against render\n");
+    println!(
+        "Each scene with its own visibility mode; adjoint = L2 against the scene moved 2 cm; \
+         median of {} interleaved repetitions. Gaussian: sigma = 1.5 bins.\n",
+        args.reps
+    );
+    println!(
+        "| scene | kernel | visibility | forward s | adjoint s | interior only s | adjoint / forward | interior / forward |"
+    );
+    println!("|---|---|---|---|---|---|---|---|");
+    let scenes = [
+        ("default scene", umbra::scene::default::default_scene()?),
+        ("accuracy sphere", bench::accuracy::scene("sphere")?),
+        ("10k-triangle sheet", bench::tri3_speed_scene()?),
+    ];
+    for (name, scene) in scenes {
+        for gaussian in [false, true] {
+            let mut scene = scene.clone();
+            scene.film.kernel = if gaussian {
+                KernelSpec::Gaussian {
+                    sigma_opl: 1.5 * scene.film.bin_width_opl,
+                }
+            } else {
+                KernelSpec::Box
+            };
+            let t = bench::grad_timing(&scene, Model::Tri3, 1, args.reps)?;
+            println!(
+                "| {name} | {} | {:?} | {:.4} | {:.4} | {:.4} | {:.2} | {:.2} |",
+                if gaussian { "gaussian" } else { "box" },
+                scene.render.visibility,
+                t.forward,
+                t.adjoint,
+                t.interior,
+                t.adjoint / t.forward,
+                t.interior / t.forward
+            );
+        }
+    }
     Ok(())
 }
 

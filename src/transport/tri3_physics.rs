@@ -1,0 +1,244 @@
+//! `tri3`'s per-pair physics (the equations of [`super::tri3_kernel`]'s module doc: corner
+//! OPL, corner weight, plane factor, centroid) written once over [`Lane`]: one `f32` (the
+//! forward kernel's per-lane loop, which the compiler vectorises) or eight (`f32x8`, the
+//! adjoint kernel's reverse, [`super::tri3_adjoint`]), so the render and its gradient
+//! evaluate the same expressions. The `f64` dual-number model ([`super::tri3_exact`]) is
+//! the oracle both are tested against.
+
+use super::tri3_kernel::Frame;
+use std::ops::{Add, BitAnd, Div, Mul, Neg, Sub};
+use wide::{f32x8, CmpGt};
+
+/// A number in one lane or eight: what the physics needs of it.
+pub trait Lane:
+    Copy
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + Neg<Output = Self>
+{
+    type Mask: Copy + BitAnd<Output = Self::Mask>;
+    fn splat(v: f32) -> Self;
+    /// `self · a + b`, fused.
+    fn mul_add(self, a: Self, b: Self) -> Self;
+    fn sqrt(self) -> Self;
+    fn abs(self) -> Self;
+    fn gt(self, o: Self) -> Self::Mask;
+    /// `a` where `m`, else `b`.
+    fn select(m: Self::Mask, a: Self, b: Self) -> Self;
+}
+
+impl Lane for f32 {
+    type Mask = bool;
+    #[inline(always)]
+    fn splat(v: f32) -> Self {
+        v
+    }
+    #[inline(always)]
+    fn mul_add(self, a: Self, b: Self) -> Self {
+        f32::mul_add(self, a, b)
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        f32::sqrt(self)
+    }
+    #[inline(always)]
+    fn abs(self) -> Self {
+        f32::abs(self)
+    }
+    #[inline(always)]
+    fn gt(self, o: Self) -> bool {
+        self > o
+    }
+    #[inline(always)]
+    fn select(m: bool, a: Self, b: Self) -> Self {
+        if m {
+            a
+        } else {
+            b
+        }
+    }
+}
+
+impl Lane for f32x8 {
+    type Mask = f32x8;
+    #[inline(always)]
+    fn splat(v: f32) -> Self {
+        f32x8::splat(v)
+    }
+    #[inline(always)]
+    fn mul_add(self, a: Self, b: Self) -> Self {
+        f32x8::mul_add(self, a, b)
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        f32x8::sqrt(self)
+    }
+    #[inline(always)]
+    fn abs(self) -> Self {
+        f32x8::abs(self)
+    }
+    #[inline(always)]
+    fn gt(self, o: Self) -> f32x8 {
+        self.cmp_gt(o)
+    }
+    #[inline(always)]
+    fn select(m: f32x8, a: Self, b: Self) -> Self {
+        m.blend(a, b)
+    }
+}
+
+pub type V3<N> = [N; 3];
+
+#[inline(always)]
+pub fn dot<N: Lane>(a: V3<N>, b: V3<N>) -> N {
+    a[0].mul_add(b[0], a[1].mul_add(b[1], a[2] * b[2]))
+}
+
+#[inline(always)]
+pub fn sub<N: Lane>(a: V3<N>, b: V3<N>) -> V3<N> {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+/// The measurement's wall points and time scale, in lanes.
+#[derive(Clone, Copy)]
+pub struct Wall<N> {
+    pub x_l: V3<N>,
+    pub x_s: V3<N>,
+    pub n_w: V3<N>,
+    offset: N,
+    pub inv_width: N,
+}
+
+impl<N: Lane> Wall<N> {
+    #[inline(always)]
+    pub fn new(f: &Frame) -> Self {
+        let v = |x: glam::Vec3| x.to_array().map(N::splat);
+        Wall {
+            x_l: v(f.x_l),
+            x_s: v(f.x_s),
+            n_w: v(f.n_w),
+            offset: N::splat(f.offset),
+            inv_width: N::splat(f.inv_width),
+        }
+    }
+
+    /// OPL in bins from the film's start of a point at distances `r_l`, `r_s`.
+    #[inline(always)]
+    pub fn bins(&self, r_l: N, r_s: N) -> N {
+        (r_l + r_s + self.offset) * self.inv_width
+    }
+}
+
+/// A point's legs to the wall points: `d = x − v`, `r²`, `r`, and the wall cosine term
+/// `c = −n_w·d`, for the laser spot and the sensor point.
+#[derive(Clone, Copy)]
+pub struct Legs<N> {
+    pub d_l: V3<N>,
+    pub r2_l: N,
+    pub r_l: N,
+    pub c_l: N,
+    pub d_s: V3<N>,
+    pub r2_s: N,
+    pub r_s: N,
+    pub c_s: N,
+}
+
+impl<N: Lane> Legs<N> {
+    /// `CONFOCAL` (`x_l == x_s`) skips the second distance.
+    #[inline(always)]
+    pub fn new<const CONFOCAL: bool>(w: &Wall<N>, v: V3<N>) -> Legs<N> {
+        let d_l = sub(w.x_l, v);
+        let r2_l = dot(d_l, d_l);
+        let (r_l, c_l) = (r2_l.sqrt(), -dot(w.n_w, d_l));
+        if CONFOCAL {
+            return Legs {
+                d_l,
+                r2_l,
+                r_l,
+                c_l,
+                d_s: d_l,
+                r2_s: r2_l,
+                r_s: r_l,
+                c_s: c_l,
+            };
+        }
+        let d_s = sub(w.x_s, v);
+        let r2_s = dot(d_s, d_s);
+        Legs {
+            d_l,
+            r2_l,
+            r_l,
+            c_l,
+            d_s,
+            r2_s,
+            r_s: r2_s.sqrt(),
+            c_s: -dot(w.n_w, d_s),
+        }
+    }
+
+    /// In front of the wall at both wall points.
+    #[inline(always)]
+    pub fn front(&self) -> N::Mask {
+        let zero = N::splat(0.0);
+        self.c_l.gt(zero) & self.c_s.gt(zero)
+    }
+
+    /// The corner weight without `ρ/π` and the plane factor:
+    /// `c_l c_s / (r_l² r_s²)²`, or `c_l / r_l⁴` for a retroreflective triangle (the return
+    /// leg's `c_s / r_s⁴` is 1, and its `p_s` in [`Plane`]); 0 behind the wall.
+    #[inline(always)]
+    pub fn weight(&self, retro: N::Mask) -> N {
+        let back_leg = N::select(retro, N::splat(1.0), self.c_s / (self.r2_s * self.r2_s));
+        let w = self.c_l * back_leg / (self.r2_l * self.r2_l);
+        N::select(self.front(), w, N::splat(0.0))
+    }
+}
+
+/// A triangle's plane terms: `p_l = n·x_l − d`, `p_s`, and the factor `|p_l p_s|`
+/// (`|p_l|` retroreflective), 0 unless the triangle faces both wall points (either side
+/// for a two-sided one).
+pub struct Plane<N: Lane> {
+    pub p_l: N,
+    pub p_s: N,
+    pub facing: N::Mask,
+    pub factor: N,
+}
+
+impl<N: Lane> Plane<N> {
+    #[inline(always)]
+    pub fn new<const CONFOCAL: bool>(
+        w: &Wall<N>,
+        n: V3<N>,
+        offset: N,
+        two_sided: N::Mask,
+        retro: N::Mask,
+    ) -> Plane<N> {
+        let p_l = dot(n, w.x_l) - offset;
+        let p_s = if CONFOCAL {
+            p_l
+        } else {
+            dot(n, w.x_s) - offset
+        };
+        let (prod, zero) = (p_l * p_s, N::splat(0.0));
+        // Masks as numbers, to select between them.
+        let (one, no) = (N::splat(1.0), N::splat(0.0));
+        let one_sided = N::select(p_l.gt(zero) & p_s.gt(zero), one, no);
+        let facing = N::select(two_sided, N::select(prod.gt(zero), one, no), one_sided).gt(zero);
+        let factor = N::select(retro, p_l.abs(), prod.abs());
+        Plane {
+            p_l,
+            p_s,
+            facing,
+            factor: N::select(facing, factor, zero),
+        }
+    }
+}
+
+/// The centroid of three corners.
+#[inline(always)]
+pub fn centroid<N: Lane>([a, b, c]: [V3<N>; 3]) -> V3<N> {
+    let third = N::splat(1.0 / 3.0);
+    [0, 1, 2].map(|k| (a[k] + b[k] + c[k]) * third)
+}

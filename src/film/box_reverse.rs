@@ -64,16 +64,27 @@ pub fn reverse_lanes(
         let [t0, t1, t2] = [t[0][j], t[1][j], t[2][j]];
         let piece = (t1 - t0).min(t2 - t1);
         let ok = live[j] & (piece > NARROW) & (area[j] > 0.0);
-        // Clamped to the film's edges (and NaN-free: dead lanes hold 0).
-        let first = (t0.floor() + 1.0).clamp(0.0, nbins + 1.0) as i32;
-        let last = (t2.ceil() - 1.0).clamp(-1.0, nbins) as i32;
+        // Clamped to the film's edges (and NaN-free: dead lanes hold 0, live ones are
+        // finite, `PulseLanes::set`).
+        let (first, last) = (
+            (t0.floor() + 1.0).clamp(0.0, nbins + 1.0),
+            (t2.ceil() - 1.0).clamp(-1.0, nbins),
+        );
+        // SAFETY: finite and within [-1, bins + 1], which i32 represents.
+        let (first, last) = unsafe {
+            (
+                first.to_int_unchecked::<i32>(),
+                last.to_int_unchecked::<i32>(),
+            )
+        };
         let wide = last - first >= MAX_EDGES;
         proper[j] = ok & !wide;
         out.fallback[j] = live[j] & !proper[j];
         if proper[j] {
             lo[j] = first;
             hi[j] = last;
-            top[j] = at(t2.ceil().clamp(-1.0, nbins + 1.0) as i32 - 1);
+            // δH_{⌈t2⌉−1}, which is δH_last (0 past the film's last bin).
+            top[j] = at(last);
         }
     }
     if !proper.iter().any(|&p| p) {

@@ -23,7 +23,6 @@ pub mod tri3_adjoint;
 pub mod tri3_exact;
 pub mod tri3_kernel;
 pub mod tri3_physics;
-pub mod tri3_reverse;
 
 pub use render::{render, Progress, RenderOptions, Renderer, Transient};
 

@@ -337,13 +337,15 @@ fn chain(mesh: &Tri3Mesh, k: usize, acc: &BlockGrad, j: usize, out: &mut [f64; T
 mod tests {
     use super::*;
     use crate::geometry::SceneGeometry;
-    use crate::transport::tri3_reverse::{self, ParentGeom};
+    use crate::transport::mc3::TriParams;
+    use crate::transport::tri3_exact::{pair_pulse, Parent, TriDual64};
 
     /// The lane reverse and the chain to the original triangle, pair by pair, against the
-    /// `f64` hand reverse (`tri3_reverse`, itself checked against dual numbers), for the
-    /// same `∂L/∂(τ, w, A)`, on the default scene: one-sided, two-sided, retroreflective.
+    /// dual-number model (`tri3_exact::pair_pulse`: the pulse inputs' derivatives with
+    /// respect to the original triangle), for the same `∂L/∂(τ, w, A)`, on the default
+    /// scene: one-sided, two-sided, retroreflective.
     #[test]
-    fn lane_reverse_matches_the_f64_reverse_per_pair() {
+    fn lane_reverse_matches_the_dual_model_per_pair() {
         let mut scene = crate::scene::default::default_scene().unwrap();
         for variant in 0..3 {
             match variant {
@@ -361,17 +363,18 @@ mod tests {
                 let frame = tri3_kernel::frame(&ctx, &film);
                 for k in 0..mesh.len() {
                     let p = mesh.parent[k] as usize;
-                    let parent = ParentGeom::new(&geom.hidden[p]);
-                    let Some(pair) = tri3_reverse::forward(&mesh, k, &parent, &ctx) else {
+                    let parent = Parent::new(TriParams::<TriDual64>::variables(&geom.hidden[p]));
+                    let Some((tau, w, area)) = pair_pulse(&mesh, k, &parent, &ctx) else {
                         continue;
                     };
                     pairs += 1;
                     let gk: [f32; 7] = std::array::from_fn(|i| ((i * 7 + k) % 5) as f32 - 2.0);
-                    // The oracle takes τ in m.
-                    let mut g64 = gk.map(f64::from);
-                    (0..3).for_each(|i| g64[i] /= film.width);
+                    // The model's τ is in m, the lanes' in bins.
                     let mut want = [0.0; TRI_PARAMS];
-                    tri3_reverse::reverse(&pair, &parent, &ctx, &g64, &mut want);
+                    for (i, input) in tau.iter().chain(&w).chain([&area]).enumerate() {
+                        let g = gk[i] as f64 / if i < 3 { film.width } else { 1.0 };
+                        want.iter_mut().zip(input.d).for_each(|(w, d)| *w += g * d);
+                    }
                     let (b, j) = (k / W, k % W);
                     let mut g = [[0.0f32; W]; 7];
                     (0..7).for_each(|i| g[i][j] = gk[i]);

@@ -14,7 +14,6 @@
 
 use super::mc3::{TriParams, TRI_PARAMS};
 use super::tri3::Tri3Mesh;
-use super::tri3_reverse::{self, ParentGeom};
 use super::MeasurementCtx;
 use crate::adjoint::dual::{self, Dual, Real};
 use crate::film::Film;
@@ -166,15 +165,15 @@ pub fn render_measurement(
 }
 
 /// The `tri3` adjoint of measurement `ctx`: adds `Σ_b adjoint_b dH_b/dθ` for every
-/// original triangle's local parameters θ (corners, corner albedos) into `tri_grad`. Per
-/// pair: the pulse's inputs in `f64` ([`super::tri3_reverse::forward`]), the pulse
-/// reversed ([`Film::triangle_bins_reverse`]), then the per-pair physics reversed
-/// ([`super::tri3_reverse::reverse`]; this module's dual-number [`pair_pulse`] is its
-/// test oracle). `parents`: every hidden triangle, once per gradient.
+/// original triangle's local parameters θ (corners, corner albedos) into `tri_grad`, in
+/// `f64`, one pair at a time: the pulse's inputs in dual numbers ([`pair_pulse`]), the
+/// pulse reversed ([`Film::triangle_bins_reverse`]), chained by the inputs' derivatives.
+/// The oracle the lane kernel (`tri3_adjoint`) is tested against. `parents`: every hidden
+/// triangle with its corners and albedos as variables.
 #[allow(clippy::too_many_arguments)]
 pub fn adjoint_measurement(
     mesh: &Tri3Mesh,
-    parents: &[ParentGeom],
+    parents: &[Parent<TriDual64>],
     ctx: &MeasurementCtx,
     film: &Film,
     visibility: crate::scene::Visibility,
@@ -189,19 +188,22 @@ pub fn adjoint_measurement(
             continue;
         }
         let p = mesh.parent[k] as usize;
-        let Some(pair) = tri3_reverse::forward(mesh, k, &parents[p], ctx) else {
+        let Some((tau, w, area)) = pair_pulse(mesh, k, &parents[p], ctx) else {
             continue;
         };
-        let g =
-            film.triangle_bins_reverse(pair.tau, pair.w, pair.area, |b| adjoint[b] as f64 * scale);
-        if g.iter().any(|&g| g != 0.0) {
-            tri3_reverse::reverse(&pair, &parents[p], ctx, &g, &mut tri_grad[p]);
+        let g = film.triangle_bins_reverse(tau.map(|t| t.v), w.map(|w| w.v), area.v, |b| {
+            adjoint[b] as f64 * scale
+        });
+        for (g, input) in g.iter().zip(tau.iter().chain(&w).chain([&area])) {
+            for (acc, d) in tri_grad[p].iter_mut().zip(input.d) {
+                *acc += g * d;
+            }
         }
     }
 }
 
-/// The `tri3` interior gradient through [`adjoint_measurement`] (`f64`, one pair at a
-/// time): the oracle the lane kernel (`tri3_adjoint`) is tested against.
+/// The `tri3` interior gradient through [`adjoint_measurement`] for the measurements
+/// `ctxs`.
 pub fn gradient_f64(
     mesh: &Tri3Mesh,
     geom: &crate::geometry::SceneGeometry,
@@ -210,7 +212,11 @@ pub fn gradient_f64(
     visibility: crate::scene::Visibility,
     adjoint: &[f32],
 ) -> Vec<[f64; TRI_PARAMS]> {
-    let parents: Vec<ParentGeom> = geom.hidden.iter().map(ParentGeom::new).collect();
+    let parents: Vec<_> = geom
+        .hidden
+        .iter()
+        .map(|t| Parent::new(TriParams::<TriDual64>::variables(t)))
+        .collect();
     let mut out = vec![[0.0; TRI_PARAMS]; parents.len()];
     for (m, ctx) in ctxs.iter().enumerate() {
         if ctx.legs_visible {

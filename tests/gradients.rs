@@ -433,3 +433,35 @@ fn cli_grad_writes_the_npz_and_refuses_a_wrong_shape() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("w.npy: shape [2, 2, 7] differs"));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// Hidden geometry on one plane cannot hide itself: the boundary terms are skipped (they
+/// are zero) and the gradient equals the interior one bit for bit; a quad off that plane
+/// makes occlusion possible again.
+#[test]
+fn coplanar_geometry_skips_the_boundary_terms() {
+    use umbra::adjoint::boundary::Boundary;
+    let flat = scene_with("confocal", &[("t.obj", LETTER, 0.7, [0.0123, 0.0071, 0.8])]);
+    let geom = SceneGeometry::build(&flat);
+    assert!(!Boundary::occlusion_possible(&geom));
+    let opts = RenderOptions {
+        model: Model::Tri3,
+        ..RenderOptions::from_scene(&flat)
+    };
+    let adj: Vec<f32> = (0..9 * 300)
+        .map(|i| ((i * 37 % 101) as f32 - 50.0) * 1e-2)
+        .collect();
+    let with = adjoint::gradient(&flat, &geom, &opts, &adj, None).unwrap();
+    let mut off = flat.clone();
+    off.render.boundary_terms = false;
+    let without = adjoint::gradient(&off, &geom, &opts, &adj, None).unwrap();
+    assert!(with.boundary && !without.boundary);
+    assert_eq!(with.vertices, without.vertices);
+    let two = scene_with(
+        "confocal",
+        &[
+            ("t.obj", LETTER, 0.7, [0.0123, 0.0071, 0.8]),
+            ("q.obj", QUAD, 0.5, [0.0, 0.0, 0.0]),
+        ],
+    );
+    assert!(Boundary::occlusion_possible(&SceneGeometry::build(&two)));
+}

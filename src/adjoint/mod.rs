@@ -141,7 +141,9 @@ pub fn gradient(
     let tris = geom.hidden.len();
     let chunks = MAX_CHUNKS.min(measurements).max(1);
     let spp = opts.spp.max(1);
-    let edges = boundary_terms_apply(scene, opts).then(|| Boundary::new(scene, &film, opts));
+    let boundary = boundary_terms_apply(scene, opts);
+    let edges =
+        (boundary && Boundary::occlusion_possible(geom)).then(|| Boundary::new(scene, &film, opts));
     let partial: Vec<ChunkGrad> = (0..chunks)
         .into_par_iter()
         .map(|c| {
@@ -234,7 +236,7 @@ pub fn gradient(
     }
     let mut g = scatter(scene, geom, &tri_grad, vertex_grad);
     (g.contributions, g.truncated) = (contributions, truncated);
-    g.boundary = edges.is_some();
+    g.boundary = boundary;
     g.boundary_nodes = nodes;
     Ok(g)
 }

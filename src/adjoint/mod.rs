@@ -15,9 +15,11 @@
 //! differentiated while the discrete choice `p_t` stays fixed. Nothing is recorded per
 //! sample: memory is one 12-vector per hidden triangle per work chunk, whatever the spp.
 //!
-//! `tri3` is deterministic: its adjoint is the exact derivative of the model
-//! ([`tri3_exact`]: the same generic formula in `f64` duals, through the pulse's closed
-//! form, so the pulse's time shift, its shape and the sub-triangle's area all move).
+//! `tri3` is deterministic: its adjoint is the exact derivative of the model, run in the
+//! forward kernel's `f32` lanes ([`tri3_adjoint`]: the same per-pair physics, the pulse
+//! reversed through its closed form, so the pulse's time shift, its shape and the
+//! sub-triangle's area all move), tested against the `f64` dual-number model
+//! (`tri3_exact`).
 //!
 //! `path` (multi-bounce) replays its paths the same way, with dual numbers over up to four
 //! hidden triangles per path (see `transport::path`): area-sampled points keep their

@@ -17,6 +17,10 @@
 //!   triangle (confocal) the return leg's `|p_s| c_s / r_s⁴` is 1 (per m²);
 //! - the curvature shift of the pulse: `0.75 (τ(c) − mean τ_i)`, `c` the centroid;
 //! - the pulse constants of [`BoxPulse`].
+//!
+//! The per-pair equations above live in [`super::tri3_physics`], written once over a lane
+//! number type: this kernel runs them in one `f32` per lane, the adjoint
+//! ([`super::tri3_adjoint`]) in eight at once.
 
 use super::tri3_physics::{centroid, Legs, Plane, Wall};
 use crate::film::{BoxPulse, Film, PulseLanes, LANES};

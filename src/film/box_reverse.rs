@@ -14,7 +14,7 @@
 
 use super::box_pulse::{PulseLanes, LANES, NARROW};
 use super::pulse_reverse::{pulse_grad, Moments};
-use wide::{f32x8, CmpLe};
+use wide::{f32x8, CmpGt, CmpLe, CmpLt};
 
 /// Per lane: `∂/∂(t0, t1, t2, w0, w1, w2, A)` of `Σ_b δH_b H_b` in the sorted slots
 /// (`t` in bins), and the lanes left to the caller (`fallback`). Dead lanes hold 0.
@@ -41,7 +41,6 @@ pub fn reverse_lanes(
     adj: &[f32],
     bins: usize,
 ) -> LaneGrad {
-    let live = *p.live();
     let t = p.t();
     let at = |k: i32| {
         if k >= 0 && (k as usize) < bins {
@@ -57,50 +56,50 @@ pub fn reverse_lanes(
     // Per lane: the pulse's inner edges `lo ..= hi`, and T. Lanes that the f32 splat
     // treats otherwise (a piece folded into the point mass) or that span too many edges
     // go to the caller; the rest get a harmless pulse where they are not proper.
+    let (zero, one) = (f32x8::ZERO, f32x8::ONE);
+    let [t0, t1, t2] = t.map(f32x8::new);
+    let live = f32x8::new(p.live().map(|l| if l { 1.0 } else { 0.0 })).cmp_gt(zero);
+    let al = f32x8::new(*area);
+    // Clamped to the film's edges (NaN-free: dead lanes hold 0, live ones are finite,
+    // `PulseLanes::set`).
     let nbins = bins as f32;
-    let mut proper = [false; LANES];
-    let (mut lo, mut hi, mut top) = ([0i32; LANES], [-1i32; LANES], [0.0f32; LANES]);
-    for j in 0..LANES {
-        let [t0, t1, t2] = [t[0][j], t[1][j], t[2][j]];
-        let piece = (t1 - t0).min(t2 - t1);
-        let ok = live[j] & (piece > NARROW) & (area[j] > 0.0);
-        // Clamped to the film's edges (and NaN-free: dead lanes hold 0, live ones are
-        // finite, `PulseLanes::set`).
-        let (first, last) = (
-            (t0.floor() + 1.0).clamp(0.0, nbins + 1.0),
-            (t2.ceil() - 1.0).clamp(-1.0, nbins),
-        );
-        // SAFETY: finite and within [-1, bins + 1], which i32 represents.
-        let (first, last) = unsafe {
-            (
-                first.to_int_unchecked::<i32>(),
-                last.to_int_unchecked::<i32>(),
-            )
-        };
-        let wide = last - first >= MAX_EDGES;
-        proper[j] = ok & !wide;
-        out.fallback[j] = live[j] & !proper[j];
-        if proper[j] {
-            lo[j] = first;
-            hi[j] = last;
-            // δH_{⌈t2⌉−1}, which is δH_last (0 past the film's last bin).
-            top[j] = at(last);
-        }
+    let first = (t0.floor() + one)
+        .fast_max(zero)
+        .fast_min(f32x8::splat(nbins + 1.0));
+    let last = (t2.ceil() - one)
+        .fast_max(-one)
+        .fast_min(f32x8::splat(nbins));
+    let proper = live
+        & (t1 - t0).fast_min(t2 - t1).cmp_gt(f32x8::splat(NARROW))
+        & al.cmp_gt(zero)
+        & (last - first).cmp_lt(f32x8::splat(MAX_EDGES as f32));
+    let (proper_at, live_at) = (proper.move_mask(), live.move_mask());
+    for (j, f) in out.fallback.iter_mut().enumerate() {
+        *f = (live_at & !proper_at) >> j & 1 == 1;
     }
-    if !proper.iter().any(|&p| p) {
+    if proper_at == 0 {
         return out;
     }
-    let pick = |v: f32, j: usize, safe: f32| if proper[j] { v } else { safe };
+    let (first, last) = (first.round_int().to_array(), last.round_int().to_array());
+    // Lanes that are not proper walk no edge and read nothing.
+    let lo: [i32; LANES] =
+        std::array::from_fn(|j| if proper_at >> j & 1 == 1 { first[j] } else { 0 });
+    let hi: [i32; LANES] =
+        std::array::from_fn(|j| if proper_at >> j & 1 == 1 { last[j] } else { -1 });
+    // δH_{⌈t2⌉−1}, which is δH_last (0 past the film's last bin).
+    let top = f32x8::new(hi.map(at)) & proper;
+    let (t0, t1, t2) = (
+        proper.blend(t0, zero),
+        proper.blend(t1, one),
+        proper.blend(t2, f32x8::splat(2.0)),
+    );
+    let wl = w.map(|w| f32x8::new(w) & proper);
+    let al = proper.blend(al, one);
     let lanes = |f: [f32; LANES]| f32x8::new(f);
-    let [t0, t1, t2] =
-        [0, 1, 2].map(|i| lanes(std::array::from_fn(|j| pick(t[i][j], j, i as f32))));
-    let wl = [0, 1, 2].map(|i| lanes(std::array::from_fn(|j| pick(w[i][j], j, 0.0))));
-    let al = lanes(std::array::from_fn(|j| pick(area[j], j, 1.0)));
-    let zero = f32x8::ZERO;
     let mut m = Moments {
         lower: [zero; 4],
         upper: [zero; 4],
-        top: lanes(top),
+        top,
     };
     let steps = (0..LANES).map(|j| hi[j] + 1 - lo[j]).max().unwrap_or(0);
     let mut prev: [f32; LANES] = std::array::from_fn(|j| at(lo[j] - 1));
@@ -121,12 +120,7 @@ pub fn reverse_lanes(
         add_powers(&mut m.lower, a & lower, x - t0);
         add_powers(&mut m.upper, a & !lower, t2 - x);
     }
-    let g = pulse_grad([t0, t1, t2], wl, al, &m).map(|g| g.to_array());
-    for (slot, g) in out.g.iter_mut().zip(g) {
-        for j in 0..LANES {
-            slot[j] = if proper[j] { g[j] } else { 0.0 };
-        }
-    }
+    out.g = pulse_grad([t0, t1, t2], wl, al, &m).map(|g| (g & proper).to_array());
     out
 }
 

@@ -3,13 +3,14 @@
 //! memory), `ablation`, `accuracy` (error against time), `scaling` (time and memory
 //! against size, a fresh process per point).
 
-use super::grad_cli::bench_grad;
+use super::grad_cli::{bench_grad, tri3_ratios};
 use std::path::PathBuf;
 use umbra::scene::Model;
 
 #[derive(clap::Args)]
 pub struct BenchArgs {
-    /// Which benchmark: tri3, grad, ablation, accuracy, grad-accuracy, scaling.
+    /// Which benchmark: tri3, grad, tri3-grad (grad's tri3 table alone), ablation, accuracy,
+    /// grad-accuracy, scaling.
     pub which: String,
     /// Timed repetitions (median reported).
     #[arg(long, default_value_t = 5)]
@@ -62,6 +63,7 @@ pub fn bench(args: BenchArgs) -> umbra::Result<()> {
         args.which.as_str(),
         "tri3"
             | "grad"
+            | "tri3-grad"
             | "grad-pass"
             | "ablation"
             | "accuracy"
@@ -70,7 +72,7 @@ pub fn bench(args: BenchArgs) -> umbra::Result<()> {
             | "scaling-point"
     ) {
         return Err(umbra::Error::Invalid(format!(
-            "bench: unknown benchmark '{}' (available: tri3, grad, ablation, accuracy, grad-accuracy, scaling)",
+            "bench: unknown benchmark '{}' (available: tri3, grad, tri3-grad, ablation, accuracy, grad-accuracy, scaling)",
             args.which
         )));
     }
@@ -85,6 +87,9 @@ pub fn bench(args: BenchArgs) -> umbra::Result<()> {
     }
     if args.which == "grad" {
         return pool.install(|| bench_grad(&args));
+    }
+    if args.which == "tri3-grad" {
+        return pool.install(|| tri3_ratios(&args));
     }
     if args.which == "ablation" {
         return pool.install(|| bench_ablation(&args));

@@ -309,7 +309,7 @@ pub fn bench_grad(args: &BenchArgs) -> umbra::Result<()> {
 /// The `tri3` gradient against its render (issue 19) on the default scene, the accuracy
 /// benchmark's sphere and the 10k-triangle sheet, with the box kernel and a Gaussian of
 /// 1.5 bins, each scene's own visibility mode.
-fn tri3_ratios(args: &BenchArgs) -> umbra::Result<()> {
+pub fn tri3_ratios(args: &BenchArgs) -> umbra::Result<()> {
     use umbra::bench;
     use umbra::scene::KernelSpec;
     println!("\n## tri3: gradient against render\n");

@@ -5,8 +5,8 @@
 //! the bin edges `k` (bin units), `α_k = δH_{k−1} − δH_k`, and its gradient needs only the
 //! adjoint moments `L_n = Σ α_k z^n` over edges in `(t0, t1]` (`z = k − t0`),
 //! `U_n = Σ α_k y^n` over `(t1, t2)` (`y = t2 − k`) and `T = Σ α_k` over `[t2, ∞)`, then
-//! [`pulse_grad`], eight lanes at once. `z` and `y` are exact in `f32` (an integer edge
-//! minus a corner within a factor two of it).
+//! [`pulse_grad`], eight lanes at once. `z` and `y` are exact in `f32` past the film's first
+//! two bins (an integer edge minus a corner within a factor two of it, Sterbenz).
 //!
 //! Lanes the forward splats otherwise (a piece narrower than `NARROW`, folded into the
 //! point mass `D`), and pulses spanning more than `MAX_EDGES` bin edges, are left to the

@@ -2,15 +2,17 @@
 //! the gradient costs about what the render does.
 //!
 //! For each block of eight sub-triangles ([`super::tri3_kernel`]) and each measurement:
-//! 1. the forward pass's own [`TriBlock::pulses`] gives the eight pulses (`f32` lanes; the
-//!    physics is written there once), visibility as in the render;
-//! 2. the pulse stage in reverse: box, [`reverse_lanes`] (the block's bin window, `δH`
-//!    read once per edge for all lanes, adjoint moments, `pulse_grad` in lanes); Gaussian,
-//!    and the few lanes the box lanes leave (a piece narrower than `NARROW`, a window wider
-//!    than `MAX_WINDOW`), [`Film::triangle_bins_reverse`] in `f64`, as the render splats
+//! 1. the forward pass's own [`TriBlock::pulses`] gives the eight pulses and the sort's
+//!    permutation, visibility as in the render;
+//! 2. the pulse stage in reverse: box, [`reverse_lanes`] (each lane walks its own pulse's
+//!    inner bin edges, adjoint moments, `pulse_grad` in lanes); Gaussian, and the few lanes
+//!    the box lanes leave (a piece narrower than `NARROW`, a pulse over more than
+//!    `MAX_EDGES` edges), [`Film::triangle_bins_reverse`] in `f64`, as the render splats
 //!    Gaussian pulses in `f64`;
-//! 3. [`TriBlock::reverse`]: `∂L/∂` of each sub-triangle's corners, corner `ρ/π`, normal,
-//!    plane offset and area, accumulated per sub-triangle over all measurements ([`BlockGrad`]).
+//! 3. [`reverse`]: the per-pair physics ([`super::tri3_physics`], the forward's equations,
+//!    here in `f32x8`) in reverse, `∂L/∂` of each sub-triangle's corners, corner `ρ/π`,
+//!    normal, plane offset and area, accumulated per sub-triangle over all measurements
+//!    ([`BlockGrad`]).
 //!
 //! Blocks are the outer loop (each block's sums run over the measurements in order, so the
 //! result is the same for any thread count) and measurements the inner one. Once, at the
@@ -19,7 +21,7 @@
 //! triangle's corners and albedos.
 //!
 //! The `f64` dual-number model ([`super::tri3_exact`]) is the oracle this is tested against
-//! (`tests/tri3_adjoint.rs`).
+//! (per pair below; the whole gradient in `tests/gradients.rs`).
 
 use super::mc3::TRI_PARAMS;
 use super::tri3::{Tri3Mesh, WINDOW_MIN_BINS};

@@ -9,7 +9,7 @@
 //!    the box lanes leave (a piece narrower than `NARROW`, a pulse over more than
 //!    `MAX_EDGES` edges), [`Film::triangle_bins_reverse`] in `f64`, as the render splats
 //!    Gaussian pulses in `f64`;
-//! 3. [`reverse`]: the per-pair physics ([`super::tri3_physics`], the forward's equations,
+//! 3. `reverse`: the per-pair physics ([`super::tri3_physics`], the forward's equations,
 //!    here in `f32x8`) in reverse, `∂L/∂` of each sub-triangle's corners, corner `ρ/π`,
 //!    normal, plane offset and area, accumulated per sub-triangle over all measurements
 //!    ([`BlockGrad`]).

@@ -91,6 +91,7 @@ fn task(
     progress: Option<&Progress>,
 ) -> Vec<BlockGrad> {
     let mut acc = vec![BlockGrad::default(); blocks.len()];
+    let mut sums = vec![BlockSum::default(); blocks.len()];
     let subs = (first * W..((first + blocks.len()) * W).min(mesh.len())).collect::<Vec<_>>();
     // `centroid` visibility: a cache over this task's original triangles only.
     let mut parents: Vec<u32> = subs.iter().map(|&k| mesh.parent[k]).collect();
@@ -102,6 +103,9 @@ fn task(
     let bins = film.bins;
     let mut pulses = PulseBlock::default();
     for (m, ctx) in ctxs.iter().enumerate() {
+        if m % FLUSH == 0 {
+            acc.iter_mut().zip(&mut sums).for_each(|(a, s)| a.flush(s));
+        }
         if let Some(p) = progress {
             if p.cancel.load(Ordering::Relaxed) {
                 break;
@@ -174,12 +178,13 @@ fn task(
             }
             let order = &pulses.order;
             if frame.confocal() {
-                reverse::<true>(block, &frame, &sorted, order, scale, &mut acc[b]);
+                reverse::<true>(block, &frame, &sorted, order, scale, &mut sums[b]);
             } else {
-                reverse::<false>(block, &frame, &sorted, order, scale, &mut acc[b]);
+                reverse::<false>(block, &frame, &sorted, order, scale, &mut sums[b]);
             }
         }
     }
+    acc.iter_mut().zip(&mut sums).for_each(|(a, s)| a.flush(s));
     acc
 }
 
@@ -216,7 +221,7 @@ fn reverse<const CONFOCAL: bool>(
     sorted: &[[f32; W]; 7],
     order: &[[f32; W]; 3],
     scale: f32,
-    acc: &mut BlockGrad,
+    acc: &mut BlockSum,
 ) {
     let v = |a: &[f32; W]| f32x8::new(*a);
     let wall = Wall::<f32x8>::new(f);
@@ -254,7 +259,7 @@ fn reverse<const CONFOCAL: bool>(
         let brdf = v(&block.brdf[i]);
         g_factor += g_w[i] * brdf * k_i;
         let g_k = g_w[i] * plane.factor;
-        acc_add(&mut acc.brdf[i], g_k * k_i);
+        acc.0[9 + i] += g_k * k_i;
         let g_kk = g_k * brdf * k_i;
         // 1/c only where the corner is in front (k_i = 0 elsewhere).
         let front = legs.front();
@@ -274,7 +279,7 @@ fn reverse<const CONFOCAL: bool>(
     for i in 0..3 {
         for k in 0..3 {
             let g = g_v[i][k] - (c.d_l[k] * u_l + c.d_s[k] * u_s) * g_c;
-            acc_add(&mut acc.corner[i][k], g);
+            acc.0[3 * i + k] += g;
         }
     }
     // The plane factor G (0 where the triangle does not face the wall points).
@@ -284,17 +289,44 @@ fn reverse<const CONFOCAL: bool>(
     let g_pl = retro.blend(g_factor * sgn(plane.p_l), g_factor * s * plane.p_s);
     let g_ps = retro.blend(zero, g_factor * s * plane.p_l);
     for k in 0..3 {
-        acc_add(&mut acc.normal[k], g_pl * wall.x_l[k] + g_ps * wall.x_s[k]);
+        acc.0[12 + k] += g_pl * wall.x_l[k] + g_ps * wall.x_s[k];
     }
-    acc_add(&mut acc.plane, -(g_pl + g_ps));
-    acc_add(&mut acc.area, g_a);
+    acc.0[15] -= g_pl + g_ps;
+    acc.0[16] += g_a;
 }
 
-/// `acc[j] += x[j]` in `f64`.
-#[inline(always)]
-fn acc_add(acc: &mut [f64; W], x: f32x8) {
-    for (a, x) in acc.iter_mut().zip(x.to_array()) {
-        *a += f64::from(x);
+/// [`BlockGrad`]'s quantities in `f32` lanes over a run of [`FLUSH`] measurements (slots:
+/// corners `3 i + axis`, `ρ/π` `9 + i`, normal `12 + axis`, plane offset 15, area 16), so
+/// [`reverse`] adds vectors; flushed into the `f64` sums at fixed measurement indices (the
+/// result does not depend on the thread count).
+#[derive(Clone, Copy)]
+pub struct BlockSum([f32x8; 17]);
+
+impl Default for BlockSum {
+    fn default() -> Self {
+        BlockSum([f32x8::ZERO; 17])
+    }
+}
+
+/// Measurements per `f32` run: 32 terms in `f32` lose at most ~2e-6 of their sum.
+const FLUSH: usize = 32;
+
+impl BlockGrad {
+    /// Adds `s` in `f64` and clears it.
+    fn flush(&mut self, s: &mut BlockSum) {
+        for (slot, v) in s.0.iter_mut().enumerate() {
+            let target = match slot {
+                0..=8 => &mut self.corner[slot / 3][slot % 3],
+                9..=11 => &mut self.brdf[slot - 9],
+                12..=14 => &mut self.normal[slot - 12],
+                15 => &mut self.plane,
+                _ => &mut self.area,
+            };
+            for (a, x) in target.iter_mut().zip(v.to_array()) {
+                *a += f64::from(x);
+            }
+            *v = f32x8::ZERO;
+        }
     }
 }
 
@@ -380,9 +412,10 @@ mod tests {
                     let (b, j) = (k / W, k % W);
                     let mut g = [[0.0f32; W]; 7];
                     (0..7).for_each(|i| g[i][j] = gk[i]);
-                    let mut acc = BlockGrad::default();
+                    let (mut acc, mut sum) = (BlockGrad::default(), BlockSum::default());
                     let order = [0.0, 1.0, 2.0].map(|i| [i; W]);
-                    reverse::<true>(&mesh.blocks[b], &frame, &g, &order, 1.0, &mut acc);
+                    reverse::<true>(&mesh.blocks[b], &frame, &g, &order, 1.0, &mut sum);
+                    acc.flush(&mut sum);
                     let mut got = [0.0; TRI_PARAMS];
                     chain(&mesh, k, &acc, j, &mut got);
                     let scale = want.iter().fold(1e-300f64, |m, g| m.max(g.abs()));

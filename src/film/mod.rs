@@ -24,6 +24,7 @@ pub mod jitter;
 pub mod normal;
 mod pulse;
 mod pulse_reverse;
+pub use pulse_reverse::Arith;
 
 pub use box_pulse::{splat_lanes, BoxPulse, LaneRow, PulseLanes, LANES, SPLAT_PAD};
 pub use box_reverse::{reverse_lanes, LaneGrad};

@@ -48,7 +48,7 @@ pub struct Moments<R> {
 }
 
 /// The arithmetic [`pulse_grad`] needs: `f64` here, eight `f32` lanes in the `tri3`
-/// adjoint kernel.
+/// adjoint kernel (and, with `transport::tri3_physics::Lane` on top, its physics).
 pub trait Arith:
     Copy
     + std::ops::Add<Output = Self>
@@ -65,6 +65,13 @@ impl Arith for f64 {
     #[inline(always)]
     fn k(v: f64) -> Self {
         v
+    }
+}
+
+impl Arith for f32 {
+    #[inline(always)]
+    fn k(v: f64) -> Self {
+        v as f32
     }
 }
 

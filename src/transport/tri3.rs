@@ -156,7 +156,7 @@ impl Tri3Mesh {
     /// measurement of `frame`, within `[0, bins)`: the OPL range of the bounding box
     /// from both wall points, widened by the curvature shift (at most `1.5` longest
     /// edges, since `|τ(c) − τ_i| ≤ 2 |c − v_i|`) and two bins.
-    pub(crate) fn reach(&self, frame: &tri3_kernel::Frame, bins: usize) -> (usize, usize) {
+    fn reach(&self, frame: &tri3_kernel::Frame, bins: usize) -> (usize, usize) {
         let (lo, hi) = self.bounds;
         let near = |x: Vec3| f64::from((x.clamp(lo, hi) - x).length());
         let far = |x: Vec3| f64::from((x - lo).abs().max((x - hi).abs()).length());
@@ -183,6 +183,23 @@ impl Tri3Mesh {
             bins
         };
         (first, end.saturating_sub(first))
+    }
+
+    /// The measurement's frame for the kernel, and the bins `first .. first + len` its
+    /// box lanes work on: the whole film, or for a film longer than [`WINDOW_MIN_BINS`]
+    /// (box kernel) only the bins the mesh can reach, with the frame's bin numbers relative
+    /// to `first` so they stay exact in `f32`. The render and the adjoint both use it.
+    pub fn frame(&self, ctx: &MeasurementCtx, film: &Film) -> (tri3_kernel::Frame, usize, usize) {
+        let mut frame = tri3_kernel::frame(ctx, film);
+        let gaussian = matches!(film.kernel, KernelSpec::Gaussian { .. });
+        if gaussian || film.bins as u64 <= WINDOW_MIN_BINS {
+            return (frame, 0, film.bins);
+        }
+        let (first, len) = self.reach(&frame, film.bins);
+        frame.offset = (f64::from(frame.offset) - first as f64 * film.width) as f32;
+        frame.lo = (f64::from(frame.lo) - first as f64) as f32;
+        frame.hi = (f64::from(frame.hi) - first as f64) as f32;
+        (frame, first, len)
     }
 
     /// Puts sub-triangle `order[k]` at `k`.
@@ -351,17 +368,8 @@ pub fn render_measurement(
 ) {
     mesh.parent_visibility(visibility, &mut scratch.visible);
     let gaussian = matches!(film.kernel, KernelSpec::Gaussian { .. });
-    let mut frame = tri3_kernel::frame(ctx, film);
     // The box histogram spans bins `first .. first + bins` of the film.
-    let (first, bins) = if !gaussian && film.bins as u64 > WINDOW_MIN_BINS {
-        let (first, len) = mesh.reach(&frame, film.bins);
-        frame.offset = (f64::from(frame.offset) - first as f64 * film.width) as f32;
-        frame.lo = (f64::from(frame.lo) - first as f64) as f32;
-        frame.hi = (f64::from(frame.hi) - first as f64) as f32;
-        (first, len)
-    } else {
-        (0, film.bins)
-    };
+    let (frame, first, bins) = mesh.frame(ctx, film);
     if gaussian {
         scratch.hist64.clear();
         scratch.hist64.resize(bins, 0.0);

@@ -24,8 +24,8 @@
 //! (per pair below; the whole gradient in `tests/gradients.rs`).
 
 use super::mc3::TRI_PARAMS;
-use super::tri3::{Tri3Mesh, WINDOW_MIN_BINS};
-use super::tri3_kernel::{self, Frame, PulseBlock, TriBlock, W};
+use super::tri3::Tri3Mesh;
+use super::tri3_kernel::{Frame, PulseBlock, TriBlock, W};
 use super::tri3_physics::{centroid, Legs, Plane, Wall};
 use super::{MeasurementCtx, Progress};
 use crate::film::{reverse_lanes, Film};
@@ -117,18 +117,8 @@ fn task(
             continue;
         }
         let adj = &adjoint[m * bins..(m + 1) * bins];
-        let mut frame = tri3_kernel::frame(ctx, film);
-        // As the render: long films get bins relative to the reach of the mesh, so the
-        // lanes' bin numbers stay exact in f32.
-        let (origin, window) = if !gaussian && bins as u64 > WINDOW_MIN_BINS {
-            let (origin, len) = mesh.reach(&frame, bins);
-            frame.offset = (f64::from(frame.offset) - origin as f64 * film.width) as f32;
-            frame.lo = (f64::from(frame.lo) - origin as f64) as f32;
-            frame.hi = (f64::from(frame.hi) - origin as f64) as f32;
-            (origin, len)
-        } else {
-            (0, bins)
-        };
+        // As the render: long films get bins relative to the reach of the mesh.
+        let (frame, origin, window) = mesh.frame(ctx, film);
         seen.iter_mut().for_each(|s| *s = 0);
         for (b, block) in blocks.iter().enumerate() {
             if frame.confocal() {
@@ -394,7 +384,7 @@ mod tests {
             let (mut worst, mut pairs) = (0.0f64, 0);
             for m in [0, 37, 500, 1023] {
                 let ctx = MeasurementCtx::new(&scene, &geom, &film, m);
-                let frame = tri3_kernel::frame(&ctx, &film);
+                let frame = mesh.frame(&ctx, &film).0;
                 for k in 0..mesh.len() {
                     let p = mesh.parent[k] as usize;
                     let parent = Parent::new(TriParams::<TriDual64>::variables(&geom.hidden[p]));

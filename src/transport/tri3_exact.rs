@@ -1,8 +1,8 @@
-//! The `tri3` model of one (measurement, sub-triangle) pair written once over [`Real`]:
-//! in `f64` it is the reference that the eight-lane `f32` kernel ([`super::tri3_kernel`])
-//! is tested against; in [`Dual`] numbers with respect to the original triangle's corners
-//! and corner albedos it is the model's exact derivative (the `tri3` adjoint), the
-//! pulse's time shift and the area factor included.
+//! The `tri3` model of one (measurement, sub-triangle) pair written once over [`Real`],
+//! the oracle of the eight-lane kernels: in `f64` it is the reference that the `f32`
+//! render ([`super::tri3_kernel`]) is tested against; in [`Dual`] numbers with respect to
+//! the original triangle's corners and corner albedos it is the model's exact derivative,
+//! the reference of the `f32` adjoint ([`super::tri3_adjoint`]).
 //!
 //! Same equations as the kernel (module doc of [`super::tri3`]): corners of the
 //! sub-triangle at barycentrics `β` of the original triangle `(v0, v1, v2)`, OPL

@@ -6,20 +6,18 @@
 //! the oracle both are tested against.
 
 use super::tri3_kernel::Frame;
-use std::ops::{Add, BitAnd, Div, Mul, Neg, Sub};
+use crate::film::Arith;
+use std::ops::BitAnd;
 use wide::{f32x8, CmpGt};
 
-/// A number in one lane or eight: what the physics needs of it.
-pub trait Lane:
-    Copy
-    + Add<Output = Self>
-    + Sub<Output = Self>
-    + Mul<Output = Self>
-    + Div<Output = Self>
-    + Neg<Output = Self>
-{
+/// A number in one lane or eight: what the physics needs of it, on top of the arithmetic
+/// the pulse's reverse needs ([`Arith`]).
+pub trait Lane: Arith {
     type Mask: Copy + BitAnd<Output = Self::Mask>;
-    fn splat(v: f32) -> Self;
+    #[inline(always)]
+    fn splat(v: f32) -> Self {
+        Self::k(f64::from(v))
+    }
     /// `self · a + b`, fused.
     fn mul_add(self, a: Self, b: Self) -> Self;
     fn sqrt(self) -> Self;
@@ -31,10 +29,6 @@ pub trait Lane:
 
 impl Lane for f32 {
     type Mask = bool;
-    #[inline(always)]
-    fn splat(v: f32) -> Self {
-        v
-    }
     #[inline(always)]
     fn mul_add(self, a: Self, b: Self) -> Self {
         f32::mul_add(self, a, b)
@@ -63,10 +57,6 @@ impl Lane for f32 {
 
 impl Lane for f32x8 {
     type Mask = f32x8;
-    #[inline(always)]
-    fn splat(v: f32) -> Self {
-        f32x8::splat(v)
-    }
     #[inline(always)]
     fn mul_add(self, a: Self, b: Self) -> Self {
         f32x8::mul_add(self, a, b)

@@ -9,7 +9,7 @@ use umbra::scene::Model;
 
 #[derive(clap::Args)]
 pub struct BenchArgs {
-    /// Which benchmark: tri3, grad, tri3-grad (grad's tri3 table alone), ablation, accuracy,
+    /// Which benchmark: tri3, grad, tri3-grad (tri3 gradient vs render), ablation, accuracy,
     /// grad-accuracy, scaling.
     pub which: String,
     /// Timed repetitions (median reported).

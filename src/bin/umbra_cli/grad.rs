@@ -269,7 +269,6 @@ pub fn bench_grad(args: &BenchArgs) -> umbra::Result<()> {
             );
         }
     }
-    tri3_ratios(args)?;
     println!("\n## Gradient pass: peak memory against spp (a fresh process each)\n");
     println!("| model | spp | peak RSS MB |");
     println!("|---|---|---|");
@@ -306,8 +305,8 @@ pub fn bench_grad(args: &BenchArgs) -> umbra::Result<()> {
     Ok(())
 }
 
-/// The `tri3` gradient against its render (issue 19) on the default scene, the accuracy
-/// benchmark's sphere and the 10k-triangle sheet, with the box kernel and a Gaussian of
+/// `umbra bench tri3-grad`: the `tri3` gradient against its render (issue 19) on the
+/// default scene, the accuracy benchmark's sphere and the 10k-triangle sheet, with the box kernel and a Gaussian of
 /// 1.5 bins, each scene's own visibility mode.
 pub fn tri3_ratios(args: &BenchArgs) -> umbra::Result<()> {
     use umbra::bench;

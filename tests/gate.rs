@@ -88,11 +88,23 @@ fn cases() -> Vec<Case> {
             gradient: Some("with laser sampling off"),
         },
         Case {
-            name: "path gradients with a finite spot",
+            name: "path gradients with a finite spot reached only by BSDF-sampled rays",
+            spec: SceneSpec {
+                render_extra: vec!["laser_sampling = false".into()],
+                ..spot.clone()
+            },
+            model: "path",
+            render: None,
+            gradient: Some(
+                "gradients of the path model with a finite laser spot need laser_sampling",
+            ),
+        },
+        Case {
+            name: "path gradients with a finite spot and laser sampling (accepted)",
             spec: spot.clone(),
             model: "path",
             render: None,
-            gradient: Some("gradients of the path model need a point laser spot"),
+            gradient: None,
         },
         Case {
             name: "retroreflective tri3 confocal (accepted)",

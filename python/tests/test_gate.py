@@ -33,7 +33,9 @@ CASES = [
     ("tri3 + finite spot", scene_toml(spot=0.01), "tri3", True, True),
     ("path, no way off the wall",
      scene_toml(render=["bsdf_sampling = false", "hidden_geometry_sampling = false"]), "path", True, True),
-    ("path gradients + finite spot", scene_toml(spot=0.01), "path", False, True),
+    ("path gradients + finite spot, no laser sampling",
+     scene_toml(spot=0.01, render=["laser_sampling = false"]), "path", False, True),
+    ("path gradients + finite spot", scene_toml(spot=0.01), "path", False, False),
     ("tri3 retroreflective confocal", scene_toml(reflectance="retroreflective"), "tri3", False, False),
 ]
 

@@ -25,7 +25,7 @@
 //! hidden triangles per path (see `transport::path`): area-sampled points keep their
 //! barycentrics, ray-found points move along their ray.
 //!
-//! Supports: `tri3`, `mc3`, `path` (point laser spot), per-object and per-vertex albedo,
+//! Supports: `tri3`, `mc3`, `path` (a finite laser spot needs laser sampling), per-object and per-vertex albedo,
 //! box and Gaussian kernels (box: no time-shift term for the Monte Carlo models, so vertex
 //! gradients miss their largest part; a warning says so). Visibility changes (silhouettes,
 //! occlusion between hidden objects) add the boundary terms of [`boundary`] to the

@@ -16,7 +16,7 @@
 //! | `tri3` with `laser.spot_radius > 0` | both | `tri3` integrates from a point spot |
 //! | `path` with BSDF and hidden-geometry sampling both off | both | no path can leave the wall |
 //! | `path` with laser sampling off and a point spot | both | no path can hit a point |
-//! | `path` with `laser.spot_radius > 0` | gradient | replay differentiates a point spot only |
+//! | `path` with `laser.spot_radius > 0`, laser sampling off and BSDF sampling on | gradient | paths then reach the spot only by landing on it, and a ray-found landing point crossing the spot's rim needs a boundary term replay does not have (with laser sampling on, those paths carry the small MIS share `q/(q + 1/(π r²))`) |
 //! | `auto` | gradient | resolve it first ([`super::Renderer::new`] does) |
 //! | `spp = 0`, `subdivision` or `max_error` not > 0, `max_depth` < 3 | both | |
 //! | a vertex not finite or beyond `scene::checks::MAX_COORD` | both | the BVH and `f32` OPLs cannot take it |
@@ -60,8 +60,8 @@ pub fn check(scene: &Scene, opts: &RenderOptions, pass: Pass) -> Result<()> {
         (Model::Path, _) if !t.laser_sampling && point_spot => {
             "path model: with laser sampling off, paths must hit the lit spot, which needs laser.spot_radius > 0"
         }
-        (Model::Path, Pass::Gradient) if !point_spot => {
-            "gradients of the path model need a point laser spot (laser.spot_radius = 0); mc3 differentiates a finite spot"
+        (Model::Path, Pass::Gradient) if !point_spot && !t.laser_sampling && t.bsdf_sampling => {
+            "gradients of the path model with a finite laser spot need laser_sampling (or bsdf_sampling off): paths that reach the spot only by a BSDF-sampled ray would need the spot rim's boundary term"
         }
         (Model::Auto, Pass::Gradient) => {
             "gradients: model auto must be resolved to tri3, mc3 or path first"

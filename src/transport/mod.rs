@@ -164,10 +164,18 @@ impl<'a> MeasurementCtx<'a> {
 
     /// OPL of the laser leg `|laser - x_l|` if counted, else 0.
     pub fn opl_laser_leg(&self, x_l: Vec3) -> f32 {
+        self.laser_leg(x_l.to_array())
+    }
+
+    /// The laser leg's length (m) to a spot point in any number type (a continuation
+    /// that lands on a finite spot moves with the path in the adjoint pass); 0 unless the
+    /// scene accounts the first and last bounces.
+    pub fn laser_leg<R: crate::adjoint::dual::Real>(&self, p: [R; 3]) -> R {
+        use crate::adjoint::dual;
         if self.scene.account_first_and_last_bounces {
-            (self.scene.laser.origin - x_l).length()
+            dual::length(dual::sub(dual::constant(self.scene.laser.origin), p))
         } else {
-            0.0
+            R::c(0.0)
         }
     }
 

@@ -37,7 +37,8 @@
 //! participating media, a non-planar wall.
 //!
 //! **Adjoint (path replay).** The weights are written once over [`Real`]
-//! ([`continuation`], [`nee`]); an adjoint sink makes the same loop carry, next to the
+//! (`continuation` with its mixture density, `Spot`'s NEE and emission weights,
+//! `survival`); an adjoint sink makes the same loop carry, next to the
 //! `f32` state, a state in dual numbers with respect to the corners and albedos of up to
 //! [`PATH_TRIANGLES`] hidden triangles met on the path. A point drawn by area sampling
 //! keeps its barycentrics; a point found by a ray keeps the ray's sampled numbers, so it
@@ -46,12 +47,15 @@
 //! the discrete choices (technique, triangle, Russian roulette) stay put: the derivative of
 //! the estimator at fixed random numbers, which finite differences with common random
 //! numbers check. Paths meeting more hidden triangles lose the further ones'
-//! derivatives (counted; see `adjoint`). Laser sampling with a point spot only.
+//! derivatives (counted; see `adjoint`). A finite spot's NEE point is drawn on the disk
+//! and stays put; the spot rim's boundary term (a BSDF-sampled landing point crossing
+//! the rim) is not included, so gradients need laser sampling on (then those paths carry
+//! the small MIS share `q/(q + 1/(π r²))`), or BSDF sampling off (the gate says so).
 
 use super::mc3::TriParams;
 use super::path_step::{
     bsdf_share, continuation, hidden_geometry_distribution, p_hg_at, step, survival,
-    technique_probabilities, Surf, WalkVertex,
+    technique_probabilities, Step, Surf, WalkVertex,
 };
 pub use super::path_step::{BSDF_SHARE_AT_HIDDEN, BSDF_SHARE_AT_WALL};
 use super::{sample_spot, Contribution, HiddenGrad, MeasurementCtx, PathVertex, Sink};
@@ -79,13 +83,6 @@ pub struct PathScratch {
     pub emitted: u64,
 }
 
-/// The vertex the path stands on (primal).
-struct Vertex {
-    s: Surf<f32>,
-    albedo: f32,
-    on_wall: bool,
-}
-
 /// `w_bsdf` of the continuation from the sensor point to hidden point `y` (on hidden
 /// triangle `flat`): the visibility boundary terms (`adjoint::boundary`) weight their two
 /// forms by it.
@@ -95,19 +92,91 @@ pub(crate) fn bsdf_share_from_sensor(ctx: &MeasurementCtx, y: Vec3, flat: u32) -
     bsdf_share(ctx, &x_s.s, true, &y)
 }
 
-/// Next-event estimation from `y` to the laser spot `x_l`:
-/// `(cos θ_y cos θ_wall / r², r)`, or `None` if `x_l` is behind either surface.
-fn nee<R: Real>(y: &Surf<R>, x_l: Vec3, n_w: Vec3) -> Option<(R, R)> {
-    let to_l = dual::sub(dual::constant(x_l), y.p);
-    let r2 = dual::dot(to_l, to_l);
-    let r = r2.sqrt();
-    let cos_y = dual::dot(y.n_side, to_l) / r;
-    let cos_wall = -dual::dot(dual::constant(n_w), to_l) / r;
-    (cos_y.v() > 0.0 && cos_wall.v() > 0.0).then(|| (cos_y * cos_wall / r2, r))
+/// The lit spot as the path's light (DESIGN §2). A point spot (`radius = 0`) is a delta
+/// light of intensity `P ρ_w/π`, reached by next-event estimation only. A finite spot is a
+/// disk of radiance `L_e = (ρ_w/π) P / (π r²)`, reached by NEE (area density
+/// `p_nee = 1/(π r²)`) and by continuations that land on it (density `q`), combined by the
+/// balance heuristic. Both weights are written once over [`Real`]: the forward pass runs
+/// them in `f32`, the replay in dual numbers.
+struct Spot {
+    radius: f32,
+    /// `1/(π r²)`; 0 for a point spot.
+    p_nee: f32,
+    /// `L_e` (finite spot) or the intensity `P ρ_w/π` (point spot).
+    emitted: f32,
+    laser_sampling: bool,
 }
 
-/// The adjoint pass's state: the path's vertex, throughput and OPL in dual numbers, and
-/// which hidden triangle owns each slot group.
+impl Spot {
+    fn new(ctx: &MeasurementCtx) -> Spot {
+        let radius = ctx.scene.laser.spot_radius;
+        let lit = ctx.f_wall * ctx.power;
+        let (p_nee, emitted) = if radius > 0.0 {
+            let area = PI * radius * radius;
+            (1.0 / area, lit / area)
+        } else {
+            (0.0, lit)
+        };
+        Spot {
+            radius,
+            p_nee,
+            emitted,
+            laser_sampling: ctx.scene.render.techniques.laser_sampling,
+        }
+    }
+
+    fn is_point(&self) -> bool {
+        self.radius <= 0.0
+    }
+
+    /// Next-event estimation from hidden vertex `y` (throughput `beta` up to `y`, `f(y)`
+    /// not included) to spot point `x_l`: the contribution's weight and `|y − x_l|`, or
+    /// `None` if `x_l` is behind either surface. With `G = cos θ_y cos θ_wall / r²`:
+    /// point spot `β f(y) G P ρ_w/π`; finite spot `β f(y) G L_e / p_nee · w_nee` with the
+    /// balance weight `w_nee = p_nee / (p_nee + q_l)`, `q_l = c_bsdf G/π + c_hg p_hg(x_l)`
+    /// the continuation's area density at `x_l` (`c` at a hidden vertex; `p_hg_l`, area
+    /// sampling's density at the wall point, does not move with the hidden geometry).
+    fn nee<R: Real>(
+        &self,
+        y: &Surf<R>,
+        beta: R,
+        x_l: Vec3,
+        n_w: Vec3,
+        (c_bsdf, c_hg): (f32, f32),
+        p_hg_l: f32,
+    ) -> Option<(R, R)> {
+        let to_l = dual::sub(dual::constant(x_l), y.p);
+        let r2 = dual::dot(to_l, to_l);
+        let r = r2.sqrt();
+        let cos_y = dual::dot(y.n_side, to_l) / r;
+        let cos_wall = -dual::dot(dual::constant(n_w), to_l) / r;
+        if cos_y.v() <= 0.0 || cos_wall.v() <= 0.0 {
+            return None;
+        }
+        let g = cos_y * cos_wall / r2;
+        let light = if self.is_point() {
+            R::c(self.emitted as f64)
+        } else {
+            let q_l = g.s(c_bsdf * FRAC_1_PI) + R::c((c_hg * p_hg_l) as f64);
+            R::c(self.emitted as f64) / (q_l + R::c(self.p_nee as f64))
+        };
+        Some((beta * y.f * g * light, r))
+    }
+
+    /// A continuation that lands on the finite spot with mixture density `q`:
+    /// `β L_e w_emit`, `w_emit = q / (q + p_nee)` when laser sampling competes, else 1.
+    fn emission<R: Real>(&self, beta: R, q: R) -> R {
+        let w = if self.laser_sampling {
+            q / (q + R::c(self.p_nee as f64))
+        } else {
+            R::c(1.0)
+        };
+        beta * w.s(self.emitted)
+    }
+}
+
+/// The adjoint pass's state: the path's vertex, throughput and OPL in dual numbers, the
+/// last continuation's mixture density, and which hidden triangle owns each slot group.
 struct Replay {
     groups: [u32; PATH_TRIANGLES],
     used: usize,
@@ -115,9 +184,26 @@ struct Replay {
     x: Surf<PathDual>,
     beta: PathDual,
     opl: PathDual,
+    q: PathDual,
 }
 
 impl Replay {
+    fn new(ctx: &MeasurementCtx) -> Replay {
+        Replay {
+            groups: [0; PATH_TRIANGLES],
+            used: 0,
+            truncated: false,
+            x: Surf {
+                p: dual::constant(ctx.x_s),
+                n_side: dual::constant(ctx.n_w),
+                f: PathDual::c(ctx.f_wall as f64),
+            },
+            beta: PathDual::c(1.0),
+            opl: PathDual::c(ctx.opl_sensor_leg as f64),
+            q: PathDual::c(0.0),
+        }
+    }
+
     /// Triangle `flat` in dual numbers (its own slots; constants once the slots are full).
     fn triangle(&mut self, ctx: &MeasurementCtx, flat: u32) -> TriParams<PathDual> {
         let tri = &ctx.geom.hidden[flat as usize];
@@ -142,6 +228,52 @@ impl Replay {
         TriParams::variables_at(tri, 12 * g)
     }
 
+    /// The forward pass's step `st` from the replay's vertex, in dual numbers: an
+    /// area-sampled point keeps its barycentrics (the wall's stays put), a ray-found point
+    /// is the ray's intersection with the plane of what it hit (it moves along the ray,
+    /// whose direction follows `x`'s normal); then the same [`continuation`] as the
+    /// forward pass, with area sampling's density over the current triangle area.
+    fn step(&mut self, ctx: &MeasurementCtx, st: &Step, techniques: (f32, f32)) {
+        let on_ray = |x: &Surf<PathDual>, n: V3<PathDual>, on_plane: V3<PathDual>| {
+            let (d, _) = cosine_dir(x.n_side, st.u_dir);
+            let t = dual::dot(n, dual::sub(on_plane, x.p)) / dual::dot(n, d);
+            let y: V3<PathDual> = std::array::from_fn(|k| x.p[k] + d[k] * t);
+            y
+        };
+        let (y, n, n_side, f, p_hg) = if st.kind == SurfaceKind::Wall {
+            let n = dual::constant(ctx.n_w);
+            let y = if st.by_bsdf {
+                on_ray(&self.x, n, dual::constant(ctx.scene.wall.center))
+            } else {
+                dual::constant(st.y.p())
+            };
+            let f = PathDual::c(ctx.f_wall as f64);
+            (y, n, n, f, PathDual::c(st.p_hg as f64))
+        } else {
+            let tri = self.triangle(ctx, st.y.flat);
+            let (n, area) = tri.normal_area();
+            let (y, b) = if st.by_bsdf {
+                let y = on_ray(&self.x, n, tri.v[0]);
+                (y, tri.barycentric_of(y))
+            } else {
+                (
+                    tri.point(st.y.bary),
+                    st.y.bary.map(|b| PathDual::c(b as f64)),
+                )
+            };
+            let hg = hidden_geometry_distribution(ctx.geom, &ctx.scene.render.techniques);
+            let p_hg = PathDual::c(hg.prob(st.y.flat) as f64) / area;
+            let n_side = if st.back { n.map(|c| -c) } else { n };
+            (y, n, n_side, tri.albedo_at_r(b).s(FRAC_1_PI), p_hg)
+        };
+        let (factor, dist, q) = continuation(&self.x, y, n, techniques, p_hg);
+        self.beta = self.beta * factor;
+        self.opl = self.opl + dist;
+        self.q = q;
+        self.x = Surf { p: y, n_side, f };
+    }
+
+    /// The derivatives of a contribution's weight and OPL, per triangle slot.
     fn grads(&self, weight: &PathDual, opl: &PathDual) -> [HiddenGrad; PATH_TRIANGLES] {
         std::array::from_fn(|g| HiddenGrad {
             flat: self.groups[g],
@@ -168,43 +300,16 @@ pub fn sample<S: Sink>(
     let keep = |bounces: u32, hidden_seen: bool| {
         r.keeps_bounces(bounces) && (hidden_seen || !r.discard_direct_paths)
     };
-    let spot_r = ctx.scene.laser.spot_radius;
-    let spot_area = PI * spot_r * spot_r;
-    let spot_radiance = if spot_r > 0.0 {
-        ctx.f_wall * ctx.power / spot_area
-    } else {
-        0.0
-    };
-    let hg_dist = hidden_geometry_distribution(geom, tech);
+    let spot = Spot::new(ctx);
     let n_w = ctx.n_w;
-    let wall_surf = |p: Vec3| Surf {
-        p: p.to_array(),
-        n_side: n_w.to_array(),
-        f: ctx.f_wall,
-    };
 
     scratch.vertices.clear();
     scratch.vertices.push(ctx.wall_vertex(ctx.x_s));
-    let mut x = Vertex {
-        s: wall_surf(ctx.x_s),
-        albedo: ctx.scene.wall.albedo,
-        on_wall: true,
-    };
+    let mut x = WalkVertex::wall(ctx, ctx.x_s);
     let mut beta = 1.0f32; // throughput up to x, without f(x)
     let mut opl = ctx.opl_sensor_leg; // OPL from the detector (or x_s) to x
     let mut hidden_seen = false;
-    let mut replay = S::ADJOINT.then(|| Replay {
-        groups: [0; PATH_TRIANGLES],
-        used: 0,
-        truncated: false,
-        x: Surf {
-            p: dual::constant(ctx.x_s),
-            n_side: dual::constant(n_w),
-            f: PathDual::c(ctx.f_wall as f64),
-        },
-        beta: PathDual::c(1.0),
-        opl: PathDual::c(ctx.opl_sensor_leg as f64),
-    });
+    let mut replay = S::ADJOINT.then(|| Replay::new(ctx));
 
     for j in 1u32.. {
         // y_j can at best close a path of j + 1 bounces (landing on the spot).
@@ -215,136 +320,68 @@ pub fn sample<S: Sink>(
         let [u_pick, u_2] = sampler.next_2d();
         let u_spot = sampler.next_2d();
         let u_rr = sampler.next_1d();
-        let techniques = technique_probabilities(tech, x.on_wall);
+        let techniques = technique_probabilities(tech, x.on_wall());
 
         // --- continuation: sample y_j by one of the two techniques -----------------
-        let Some(st) = step(ctx, &x.s, x.on_wall, [u_pick, u_2]) else {
+        let Some(st) = step(ctx, &x.s, x.on_wall(), [u_pick, u_2]) else {
             break;
         };
-        let (by_bsdf, u_dir, back, q, p_hg) = (st.by_bsdf, st.u_dir, st.back, st.q, st.p_hg);
-        let (y_p, kind, flat, bary) = (st.y.p(), st.kind, st.y.flat, st.y.bary);
-        let on_wall = kind == SurfaceKind::Wall;
         beta *= st.factor;
         opl += st.dist;
+        let y = st.y;
         let y_vertex = PathVertex {
-            p: y_p,
-            kind,
-            flat,
-            bary,
+            p: y.p(),
+            kind: st.kind,
+            flat: y.flat,
+            bary: y.bary,
         };
-
-        // --- the same step in dual numbers (adjoint pass) ---------------------------
         if let Some(rp) = replay.as_mut() {
-            let (y_d, n_d, f_d) = if on_wall {
-                let y = if by_bsdf {
-                    let (d, _) = cosine_dir(rp.x.n_side, u_dir);
-                    let n = dual::constant(n_w);
-                    let c = dual::constant(ctx.scene.wall.center);
-                    let t = dual::dot(n, dual::sub(c, rp.x.p)) / dual::dot(n, d);
-                    std::array::from_fn(|k| rp.x.p[k] + d[k] * t)
-                } else {
-                    dual::constant(y_p)
-                };
-                (y, dual::constant(n_w), PathDual::c(ctx.f_wall as f64))
-            } else {
-                let tri = rp.triangle(ctx, flat);
-                let (n, area) = tri.normal_area();
-                let (y, b) = if by_bsdf {
-                    let (d, _) = cosine_dir(rp.x.n_side, u_dir);
-                    let t = dual::dot(n, dual::sub(tri.v[0], rp.x.p)) / dual::dot(n, d);
-                    let y: V3<PathDual> = std::array::from_fn(|k| rp.x.p[k] + d[k] * t);
-                    (y, tri.barycentric_of(y))
-                } else {
-                    (tri.point(bary), bary.map(|b| PathDual::c(b as f64)))
-                };
-                let p_hg_d = PathDual::c(hg_dist.prob(flat) as f64) / area;
-                let (fac, dist, _) = continuation(&rp.x, y, n, techniques, p_hg_d);
-                rp.beta = rp.beta * fac;
-                rp.opl = rp.opl + dist;
-                let n_side = if back { n.map(|c| -c) } else { n };
-                rp.x = Surf {
-                    p: y,
-                    n_side,
-                    f: tri.albedo_at_r(b).s(FRAC_1_PI),
-                };
-                (y, n, rp.x.f)
-            };
-            if on_wall {
-                let p_hg_d = PathDual::c(p_hg as f64);
-                let (fac, dist, _) = continuation(&rp.x, y_d, n_d, techniques, p_hg_d);
-                rp.beta = rp.beta * fac;
-                rp.opl = rp.opl + dist;
-                rp.x = Surf {
-                    p: y_d,
-                    n_side: n_d,
-                    f: f_d,
-                };
-            }
+            rp.step(ctx, &st, techniques);
         }
 
-        let y = if on_wall {
-            // A BSDF-sampled path landing on a finite lit spot: emission, MIS-weighted
-            // against laser sampling (NEE) of the same point.
-            if spot_r > 0.0
-                && (y_p - ctx.x_l).length_squared() <= spot_r * spot_r
+        if y.on_wall() {
+            // A continuation landing on a finite lit spot: emission, MIS-weighted against
+            // laser sampling (NEE) of the same point.
+            if !spot.is_point()
+                && (y.p() - ctx.x_l).length_squared() <= spot.radius * spot.radius
                 && keep(j + 1, hidden_seen)
             {
-                // Balance heuristic between the continuation (density q, whichever
-                // technique drew y) and NEE (density 1/(π r²)) for this spot point.
-                let w_mis = if tech.laser_sampling {
-                    q / (q + 1.0 / spot_area)
-                } else {
-                    1.0
-                };
-                let total_opl = opl + ctx.opl_laser_leg(y_p);
+                let total_opl = opl + ctx.opl_laser_leg(y.p());
                 if total_opl >= ctx.opl_min && total_opl < ctx.opl_max {
+                    let grad = replay.as_ref().map(|rp| {
+                        let w = spot.emission(rp.beta, rp.q);
+                        let o = rp.opl + ctx.laser_leg(rp.x.p);
+                        (rp.grads(&w, &o), rp.used, rp.truncated)
+                    });
                     emit(
                         scratch,
                         sink,
                         y_vertex,
                         total_opl,
-                        beta * spot_radiance * w_mis,
+                        spot.emission(beta, st.q),
                         j + 1,
-                        None,
+                        grad.as_ref().map(|(g, n, t)| (&g[..*n], *t)),
                     );
                 }
             }
-            Vertex {
-                s: wall_surf(y_p),
-                albedo: ctx.scene.wall.albedo,
-                on_wall: true,
-            }
         } else {
             hidden_seen = true;
-            let (y_surf, albedo) = (st.y.s, st.y.albedo);
-            let (f_y, n_side) = (y_surf.f, st.y.n_side());
             if tech.laser_sampling && keep(j + 2, hidden_seen) {
                 let x_l = sample_spot(ctx, u_spot);
-                if let Some((g, r_l)) = nee(&y_surf, x_l, n_w) {
+                // The continuation from y (a hidden vertex) could land on x_l too: by
+                // BSDF sampling, or by area sampling of the wall.
+                let from_y = technique_probabilities(tech, false);
+                let p_hg_l = if spot.is_point() || !tech.hidden_geometry_includes_wall {
+                    0.0
+                } else {
+                    p_hg_at(ctx, u32::MAX, || geom.wall_tri_of(x_l))
+                };
+                if let Some((weight, r_l)) = spot.nee(&y.s, beta, x_l, n_w, from_y, p_hg_l) {
                     let total_opl = opl + r_l + ctx.opl_laser_leg(x_l);
-                    let weight = if spot_r > 0.0 {
-                        let p_nee = 1.0 / spot_area;
-                        // The continuation from y (a hidden vertex) could have landed
-                        // on x_l too: by BSDF sampling, or by area sampling of the wall.
-                        let (c_b, c_h) = technique_probabilities(tech, false);
-                        let w_l = (x_l - y_p) / r_l;
-                        let (cos_y_l, cos_wall_l) = (n_side.dot(w_l), -n_w.dot(w_l));
-                        let q_l = c_b * cos_y_l * FRAC_1_PI * cos_wall_l / (r_l * r_l)
-                            + if tech.hidden_geometry_includes_wall {
-                                c_h * p_hg_at(ctx, u32::MAX, || geom.wall_tri_of(x_l))
-                            } else {
-                                0.0
-                            };
-                        let w_mis = p_nee / (p_nee + q_l);
-                        beta * f_y * g * spot_radiance / p_nee * w_mis
-                    } else {
-                        beta * f_y * g * ctx.power * ctx.f_wall
-                    };
                     let in_film = total_opl >= ctx.opl_min && total_opl < ctx.opl_max;
-                    if in_film && weight > 0.0 && !geom.occluded(y_p, x_l) {
+                    if in_film && weight > 0.0 && !geom.occluded(y.p(), x_l) {
                         let grad = replay.as_ref().and_then(|rp| {
-                            let (g_d, r_d) = nee(&rp.x, x_l, n_w)?;
-                            let w = rp.beta * rp.x.f * g_d.s(ctx.power * ctx.f_wall);
+                            let (w, r_d) = spot.nee(&rp.x, rp.beta, x_l, n_w, from_y, p_hg_l)?;
                             let o = rp.opl + r_d + PathDual::c(ctx.opl_laser_leg(x_l) as f64);
                             Some((rp.grads(&w, &o), rp.used, rp.truncated))
                         });
@@ -362,12 +399,7 @@ pub fn sample<S: Sink>(
                     }
                 }
             }
-            Vertex {
-                s: y_surf,
-                albedo,
-                on_wall: false,
-            }
-        };
+        }
 
         // --- Russian roulette before extending past rr_bounces -----------------------
         if j + 2 >= r.rr_bounces {
@@ -377,13 +409,13 @@ pub fn sample<S: Sink>(
             }
             beta /= survive;
             if let Some(rp) = replay.as_mut() {
-                // d survive / dθ: the albedo's where it is not clamped.
-                let s = if y.albedo > 0.05 && y.albedo < 0.95 && !y.on_wall {
-                    rp.x.f.s(PI)
+                // The albedo in dual numbers: ρ = π f at a hidden vertex.
+                let albedo = if y.on_wall() {
+                    PathDual::c(y.albedo as f64)
                 } else {
-                    PathDual::c(survive as f64)
+                    rp.x.f.s(PI)
                 };
-                rp.beta = rp.beta / s;
+                rp.beta = rp.beta / survival(albedo);
             }
         }
         scratch.vertices.push(y_vertex);

@@ -297,8 +297,15 @@ pub(crate) fn step(
 }
 
 /// Russian roulette's survival probability at a vertex of this albedo.
-pub(crate) fn survival(albedo: f32) -> f32 {
-    albedo.clamp(0.05, 0.95)
+/// Written over [`Real`]: the replay differentiates it where the albedo is not clamped.
+pub(crate) fn survival<R: Real>(albedo: R) -> R {
+    if albedo.v() < 0.05 {
+        R::c(0.05)
+    } else if albedo.v() > 0.95 {
+        R::c(0.95)
+    } else {
+        albedo
+    }
 }
 
 /// A walk from `start` by [`step`]s, as `path` extends its paths: `visit(vertices, beta,

@@ -105,6 +105,14 @@ pub fn shared_dir(var: &str, name: &str) -> std::path::PathBuf {
 /// `tri3_at_exact_opl_ties` checks a mirror-symmetric placement, where corners of
 /// sub-triangles tie in OPL exactly.
 pub fn check(scene: &Scene, model: Model, spp: u32, params: usize) {
+    // Steps small against σ = 12 mm (the difference's own error is (h/σ)² / 6); tri3's
+    // f64 reference allows smaller ones.
+    let h = if model == Model::Tri3 { 1e-4 } else { 3e-4 };
+    check_at(scene, model, spp, params, h);
+}
+
+/// [`check`] with finite-difference step `h` (m).
+pub fn check_at(scene: &Scene, model: Model, spp: u32, params: usize, h: f64) {
     let opts = RenderOptions {
         model,
         spp,
@@ -112,9 +120,6 @@ pub fn check(scene: &Scene, model: Model, spp: u32, params: usize) {
         ..RenderOptions::from_scene(scene)
     };
     let ps = umbra::adjoint::check::pick_params(scene, params, 12345);
-    // Steps small against σ = 12 mm (the difference's own error is (h/σ)² / 6); tri3's
-    // f64 reference allows smaller ones.
-    let h = if model == Model::Tri3 { 1e-4 } else { 3e-4 };
     let rows = umbra::adjoint::check::run(scene, &opts, &ps, &[h]).unwrap();
     let largest = rows.iter().map(|r| r.fd[0].1.abs()).fold(0.0, f64::max);
     assert!(

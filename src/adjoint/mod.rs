@@ -47,17 +47,15 @@ use crate::error::{Error, Result};
 use crate::film::Film;
 use crate::geometry::SceneGeometry;
 use crate::scene::{KernelSpec, Model, Scene};
+use crate::transport::gate::Pass;
 use crate::transport::mc3::TRI_PARAMS;
 use crate::transport::path::PathScratch;
-use crate::transport::tri3::Tri3Mesh;
 use crate::transport::tri3_adjoint;
 use crate::transport::{
-    run_samples_with, Contribution, HiddenGrad, MeasurementCtx, Progress, RenderOptions, Sink,
-    BLOCK_SPP,
+    Contribution, HiddenGrad, MeasurementCtx, Progress, RenderOptions, Renderer, Sink,
 };
 use boundary::Boundary;
 use rayon::prelude::*;
-use std::sync::atomic::Ordering;
 
 /// `dLoss/dθ`, per hidden object in scene order.
 #[derive(Clone, Debug, Default)]
@@ -115,7 +113,9 @@ impl Sink for AdjointSink<'_> {
 /// number of threads.
 const MAX_CHUNKS: usize = 16;
 
-/// `dLoss/dθ` for the adjoint histogram `adjoint` (`dLoss/dH`, the render's shape).
+/// `dLoss/dθ` for the adjoint histogram `adjoint` (`dLoss/dH`, the render's shape), on
+/// the render's driver ([`Renderer::prepare`]: the same gate, model, film, measurements
+/// and sample blocks as the forward pass).
 pub fn gradient(
     scene: &Scene,
     geom: &SceneGeometry,
@@ -123,10 +123,8 @@ pub fn gradient(
     adjoint: &[f32],
     progress: Option<&Progress>,
 ) -> Result<Gradient> {
-    let model = opts.model;
-    crate::transport::gate::check(scene, opts, crate::transport::gate::Pass::Gradient)?;
-    let tri3 = (model == Model::Tri3).then(|| Tri3Mesh::build(scene, geom, opts.subdivision));
-    let film = Film::new(&scene.film);
+    let driver = Renderer::prepare(scene, geom, opts, Pass::Gradient)?;
+    let film = &driver.film;
     let (measurements, bins) = (scene.num_measurements(), film.bins);
     if adjoint.len() != measurements * bins {
         return Err(Error::Invalid(format!(
@@ -145,7 +143,15 @@ pub fn gradient(
     let spp = opts.spp.max(1);
     let boundary = boundary_terms_apply(scene, opts);
     let edges =
-        (boundary && Boundary::occlusion_possible(geom)).then(|| Boundary::new(scene, &film, opts));
+        (boundary && Boundary::occlusion_possible(geom)).then(|| Boundary::new(scene, film, opts));
+    // tri3's interior pass runs blocks outer over every measurement: the contexts are
+    // built once, for it and the boundary terms.
+    let tri3_ctxs: Option<Vec<MeasurementCtx>> = driver.tri3.as_ref().map(|_| {
+        (0..measurements)
+            .into_par_iter()
+            .map(|m| driver.measurement(m))
+            .collect()
+    });
     let partial: Vec<ChunkGrad> = (0..chunks)
         .into_par_iter()
         .map(|c| {
@@ -154,46 +160,38 @@ pub fn gradient(
             let mut views = edge_nodes::ViewCache::default();
             let mut scratch = PathScratch::default();
             for m in (c * measurements / chunks)..((c + 1) * measurements / chunks) {
-                if progress.is_some_and(|p| p.cancel.load(Ordering::Relaxed)) {
+                if Renderer::cancelled(progress) {
                     break;
                 }
-                let ctx = MeasurementCtx::new(scene, geom, &film, m);
+                let built;
+                let ctx = match &tri3_ctxs {
+                    Some(ctxs) => &ctxs[m],
+                    None => {
+                        built = driver.measurement(m);
+                        &built
+                    }
+                };
                 let adj = &adjoint[m * bins..(m + 1) * bins];
                 if let (Some(b), Some(g), true) = (&edges, &mut vertex_grad, ctx.legs_visible) {
-                    b.measurement(scene, &ctx, m, &film, adj, &mut views, g);
+                    b.measurement(scene, ctx, m, film, adj, &mut views, g);
                 }
-                if tri3.is_some() {
+                if tri3_ctxs.is_some() {
                     // The interior part runs after this loop, blocks outer
                     // (`tri3_adjoint`), and counts the progress.
                     continue;
                 }
-                if !ctx.legs_visible {
-                    if let Some(p) = progress {
-                        p.work_done.fetch_add(spp as u64, Ordering::Relaxed);
+                if ctx.legs_visible {
+                    let mut sink = AdjointSink {
+                        film,
+                        adjoint: adj,
+                        tri_grad: &mut tri_grad,
+                        scale: 1.0 / spp as f64,
+                    };
+                    for range in driver.sample_blocks() {
+                        driver.run_block(ctx, m, range, &mut sink, &mut scratch);
                     }
-                    continue;
                 }
-                let mut sink = AdjointSink {
-                    film: &film,
-                    adjoint: adj,
-                    tri_grad: &mut tri_grad,
-                    scale: 1.0 / spp as f64,
-                };
-                for first in (0..spp).step_by(BLOCK_SPP as usize) {
-                    let range = first..(first + BLOCK_SPP).min(spp);
-                    run_samples_with(
-                        model,
-                        &ctx,
-                        opts.seed,
-                        m as u64,
-                        range,
-                        &mut sink,
-                        &mut scratch,
-                    );
-                }
-                if let Some(p) = progress {
-                    p.work_done.fetch_add(spp as u64, Ordering::Relaxed);
-                }
+                Renderer::count(progress, spp as u64);
             }
             ChunkGrad {
                 tri_grad,
@@ -204,19 +202,15 @@ pub fn gradient(
             }
         })
         .collect();
-    if progress.is_some_and(|p| p.cancel.load(Ordering::Relaxed)) {
+    if Renderer::cancelled(progress) {
         return Err(Error::Cancelled);
     }
-    let mut tri_grad = match &tri3 {
-        Some(mesh) => {
-            let ctxs: Vec<MeasurementCtx> = (0..measurements)
-                .into_par_iter()
-                .map(|m| MeasurementCtx::new(scene, geom, &film, m))
-                .collect();
-            tri3_adjoint::gradient(mesh, tris, &ctxs, &film, opts.visibility, adjoint, progress)
+    let mut tri_grad = match (&driver.tri3, &tri3_ctxs) {
+        (Some(mesh), Some(ctxs)) => {
+            tri3_adjoint::gradient(mesh, tris, ctxs, film, opts.visibility, adjoint, progress)
                 .ok_or(Error::Cancelled)?
         }
-        None => vec![[0.0f64; TRI_PARAMS]; tris],
+        _ => vec![[0.0f64; TRI_PARAMS]; tris],
     };
     let mut vertex_grad = zero_vertex_grad(scene);
     let (mut contributions, mut truncated, mut nodes) = (0, 0, 0);

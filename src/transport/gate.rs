@@ -2,9 +2,9 @@
 //!
 //! Every entry point (`umbra render`, `grad`, `gradcheck`, `fit`, Python's `render`,
 //! `grad`, `fit` and `umbra.torch`) reaches the estimators through
-//! [`super::Renderer::new`] or [`crate::adjoint::gradient`], and both call [`check`]
-//! first: a combination refused by one entry point is refused by all, with the same
-//! message. Option overrides from the command line or from Python keyword arguments go
+//! [`super::Renderer::prepare`] (the render's [`super::Renderer::new`] and
+//! [`crate::adjoint::gradient`] both start there), which calls [`check`] first: a
+//! combination refused by one entry point is refused by all, with the same message. Option overrides from the command line or from Python keyword arguments go
 //! through [`Overrides::apply`], which checks each value and names the option.
 //!
 //! What is refused, and why:

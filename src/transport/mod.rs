@@ -189,28 +189,9 @@ impl<'a> MeasurementCtx<'a> {
     }
 }
 
-/// Runs samples `range` of measurement `m` with the model's sampling routine.
+/// Runs samples `range` of measurement `m` with the model's sampling routine (the
+/// caller's path scratch: its counters are what the adjoint reads).
 pub fn run_samples<S: Sink>(
-    model: Model,
-    ctx: &MeasurementCtx,
-    seed: u64,
-    m: u64,
-    range: std::ops::Range<u32>,
-    sink: &mut S,
-) {
-    run_samples_with(
-        model,
-        ctx,
-        seed,
-        m,
-        range,
-        sink,
-        &mut path::PathScratch::default(),
-    );
-}
-
-/// [`run_samples`] with the caller's path scratch (whose counters the adjoint reads).
-pub fn run_samples_with<S: Sink>(
     model: Model,
     ctx: &MeasurementCtx,
     seed: u64,

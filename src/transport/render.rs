@@ -1,16 +1,21 @@
-//! The render driver: resolves the model (`auto` included), prepares it, and runs it over
-//! all measurements in parallel.
+//! The measurement driver of the render and of the gradient: [`Renderer::prepare`] checks
+//! the scene and options at the gate, resolves the model (`auto` included), builds what
+//! the model needs (the film, `tri3`'s sub-triangles), and hands out each measurement's
+//! context, its Monte Carlo sample blocks and the progress count; [`Renderer::render`]
+//! runs it over all measurements into histograms, `adjoint::gradient` over the same
+//! measurements into gradient sums.
 //!
 //! Determinism: the Monte Carlo models draw sample `i` of measurement `m` from
-//! `Sampler::new(seed, m, i)` in fixed blocks of [`BLOCK_SPP`] whose histograms are
-//! summed in block order; `tri3` is deterministic. Either way the output does not depend
-//! on the number of threads.
+//! `Sampler::new(seed, m, i)` in fixed blocks of [`BLOCK_SPP`] ([`Renderer::sample_blocks`]);
+//! the render sums the blocks' histograms in block order; `tri3` is deterministic. Either
+//! way the output does not depend on the number of threads.
 
 use super::auto::{choose_model, AutoChoice};
 use super::budget::FOLD_BLOCKS;
 use super::gate::{self, Pass};
+use super::path::PathScratch;
 use super::tri3::{self, Tri3Mesh, Tri3Scratch};
-use super::{run_samples, HistogramSink, MeasurementCtx, BLOCK_SPP};
+use super::{run_samples, HistogramSink, MeasurementCtx, Sink, BLOCK_SPP};
 use crate::error::{Error, Result};
 use crate::film::Film;
 use crate::geometry::SceneGeometry;
@@ -68,22 +73,36 @@ impl Transient {
     }
 }
 
-/// A scene ready to render with a resolved model.
+/// A scene ready to render or differentiate with a resolved model: the one driver both
+/// passes run on.
 pub struct Renderer<'a> {
-    scene: &'a Scene,
-    geom: &'a SceneGeometry,
-    opts: RenderOptions,
-    film: Film,
+    pub(crate) scene: &'a Scene,
+    pub(crate) geom: &'a SceneGeometry,
+    /// The options, with `model` resolved.
+    pub(crate) opts: RenderOptions,
+    pub(crate) film: Film,
     /// The model that runs (never `Auto`).
     pub model: Model,
     /// Why `auto` chose `model`, with the pilot's measurements.
     pub auto_choice: Option<AutoChoice>,
-    tri3: Option<Tri3Mesh>,
+    pub(crate) tri3: Option<Tri3Mesh>,
 }
 
 impl<'a> Renderer<'a> {
+    /// Prepares the forward render ([`Renderer::prepare`] for [`Pass::Render`]).
     pub fn new(scene: &'a Scene, geom: &'a SceneGeometry, opts: &RenderOptions) -> Result<Self> {
-        gate::check(scene, opts, Pass::Render)?;
+        Self::prepare(scene, geom, opts, Pass::Render)
+    }
+
+    /// The gate for `pass`, then the model resolved (`auto` runs its pilot; the gate
+    /// refuses `auto` for gradients) and checked again, and what it needs built.
+    pub fn prepare(
+        scene: &'a Scene,
+        geom: &'a SceneGeometry,
+        opts: &RenderOptions,
+        pass: Pass,
+    ) -> Result<Self> {
+        gate::check(scene, opts, pass)?;
         let (model, auto_choice) = match opts.model {
             Model::Auto => {
                 let c = choose_model(scene, geom, opts)?;
@@ -93,7 +112,7 @@ impl<'a> Renderer<'a> {
                         model: c.model,
                         ..*opts
                     },
-                    Pass::Render,
+                    pass,
                 )?;
                 (c.model, Some(c))
             }
@@ -103,7 +122,7 @@ impl<'a> Renderer<'a> {
         Ok(Renderer {
             scene,
             geom,
-            opts: *opts,
+            opts: RenderOptions { model, ..*opts },
             film: Film::new(&scene.film),
             model,
             auto_choice,
@@ -111,12 +130,59 @@ impl<'a> Renderer<'a> {
         })
     }
 
+    /// Measurement `m`'s context (its laser and sensor points, legs, film window).
+    pub fn measurement(&self, m: usize) -> MeasurementCtx<'a> {
+        MeasurementCtx::new(self.scene, self.geom, &self.film, m)
+    }
+
+    /// A Monte Carlo measurement's sample blocks: `BLOCK_SPP` samples each, the last one
+    /// shorter. Both passes draw the same samples in these blocks.
+    pub fn sample_blocks(&self) -> impl Iterator<Item = std::ops::Range<u32>> {
+        let spp = self.opts.spp;
+        (0..spp)
+            .step_by(BLOCK_SPP as usize)
+            .map(move |first| first..(first + BLOCK_SPP).min(spp))
+    }
+
+    /// Runs samples `range` of measurement `m` (context `ctx`) into `sink`.
+    pub fn run_block<S: Sink>(
+        &self,
+        ctx: &MeasurementCtx,
+        m: usize,
+        range: std::ops::Range<u32>,
+        sink: &mut S,
+        scratch: &mut PathScratch,
+    ) {
+        run_samples(
+            self.model,
+            ctx,
+            self.opts.seed,
+            m as u64,
+            range,
+            sink,
+            scratch,
+        );
+    }
+
+    /// Counts `work` units done (progress bars).
+    pub fn count(progress: Option<&Progress>, work: u64) {
+        if let Some(p) = progress {
+            p.work_done.fetch_add(work, Ordering::Relaxed);
+        }
+    }
+
+    /// Whether the caller asked to stop.
+    pub fn cancelled(progress: Option<&Progress>) -> bool {
+        progress.is_some_and(|p| p.cancel.load(Ordering::Relaxed))
+    }
+
     /// Units of work the render does (for progress bars): samples or triangle pairs.
     pub fn total_work(&self) -> u64 {
         self.scene.num_measurements() as u64 * self.work_per_measurement()
     }
 
-    fn work_per_measurement(&self) -> u64 {
+    /// Units of work of one measurement.
+    pub fn work_per_measurement(&self) -> u64 {
         match &self.tri3 {
             Some(mesh) => mesh.len() as u64,
             None => self.opts.spp as u64,
@@ -150,8 +216,7 @@ impl<'a> Renderer<'a> {
         let cancelled = AtomicBool::new(false);
         let nested = self.scene.num_measurements() < rayon::current_num_threads();
         let stop = || {
-            let c = cancelled.load(Ordering::Relaxed)
-                || progress.is_some_and(|p| p.cancel.load(Ordering::Relaxed));
+            let c = cancelled.load(Ordering::Relaxed) || Self::cancelled(progress);
             if c {
                 cancelled.store(true, Ordering::Relaxed);
             }
@@ -164,20 +229,15 @@ impl<'a> Renderer<'a> {
                     if stop() {
                         return;
                     }
-                    let ctx = MeasurementCtx::new(self.scene, self.geom, &self.film, m);
+                    let ctx = self.measurement(m);
                     if !ctx.legs_visible {
-                        if let Some(p) = progress {
-                            p.work_done
-                                .fetch_add(self.work_per_measurement(), Ordering::Relaxed);
-                        }
+                        Self::count(progress, self.work_per_measurement());
                         return;
                     }
                     if let Some(mesh) = &self.tri3 {
                         let v = self.opts.visibility;
                         tri3::render_measurement(mesh, &ctx, &self.film, v, scratch, out);
-                        if let Some(p) = progress {
-                            p.work_done.fetch_add(mesh.len() as u64, Ordering::Relaxed);
-                        }
+                        Self::count(progress, mesh.len() as u64);
                         return;
                     }
                     let Some(hist) = self.monte_carlo(&ctx, m, progress, &stop, nested) else {
@@ -214,7 +274,8 @@ impl<'a> Renderer<'a> {
         nested: bool,
     ) -> Option<Vec<f64>> {
         let (bins, spp) = (self.film.bins, self.opts.spp);
-        let blocks = spp.div_ceil(BLOCK_SPP) as usize;
+        let ranges: Vec<std::ops::Range<u32>> = self.sample_blocks().collect();
+        let blocks = ranges.len();
         let mut acc = vec![0.0f64; bins];
         // Blocks run FOLD_BLOCKS at a time and are added in block order: memory stays
         // flat in spp (it grew by a histogram per block until the measurement ended), and
@@ -224,25 +285,15 @@ impl<'a> Renderer<'a> {
                 if stop() {
                     return None;
                 }
-                let first = b as u32 * BLOCK_SPP;
-                let last = (first + BLOCK_SPP).min(spp);
+                let range = ranges[b].clone();
+                let samples = range.len() as u64;
                 let mut hist = vec![0.0f64; bins];
                 let mut sink = HistogramSink {
                     film: &self.film,
                     hist: &mut hist,
                 };
-                run_samples(
-                    self.model,
-                    ctx,
-                    self.opts.seed,
-                    m as u64,
-                    first..last,
-                    &mut sink,
-                );
-                if let Some(p) = progress {
-                    p.work_done
-                        .fetch_add((last - first) as u64, Ordering::Relaxed);
-                }
+                self.run_block(ctx, m, range, &mut sink, &mut PathScratch::default());
+                Self::count(progress, samples);
                 Some(hist)
             };
             let range = group..(group + FOLD_BLOCKS).min(blocks);

@@ -454,34 +454,91 @@ fn cli_grad_writes_the_npz_and_refuses_a_wrong_shape() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
-/// Hidden geometry on one plane cannot hide itself: the boundary terms are skipped (they
-/// are zero) and the gradient equals the interior one bit for bit; a quad off that plane
-/// makes occlusion possible again.
+/// Hidden geometry on the boundary of its convex hull (one plane; a convex body) cannot
+/// hide itself: the boundary terms are skipped (they are zero) and the gradient equals the
+/// interior one bit for bit; and the terms run regardless of the test add exactly 0. A
+/// quad off the letter's plane, two spheres, or a concave corner make occlusion possible
+/// again.
 #[test]
-fn coplanar_geometry_skips_the_boundary_terms() {
+fn geometry_on_its_convex_hull_skips_the_boundary_terms() {
     use umbra::adjoint::boundary::Boundary;
-    let flat = scene_with("confocal", &[("t.obj", LETTER, 0.7, [0.0123, 0.0071, 0.8])]);
-    let geom = SceneGeometry::build(&flat);
-    assert!(!Boundary::occlusion_possible(&geom));
-    let opts = RenderOptions {
-        model: Model::Tri3,
-        ..RenderOptions::from_scene(&flat)
-    };
+    let sphere = sphere_obj();
     let adj: Vec<f32> = (0..9 * 300)
         .map(|i| ((i * 37 % 101) as f32 - 50.0) * 1e-2)
         .collect();
-    let with = adjoint::gradient(&flat, &geom, &opts, &adj, None).unwrap();
-    let mut off = flat.clone();
-    off.render.boundary_terms = false;
-    let without = adjoint::gradient(&off, &geom, &opts, &adj, None).unwrap();
-    assert!(with.boundary && !without.boundary);
-    assert_eq!(with.vertices, without.vertices);
-    let two = scene_with(
-        "confocal",
-        &[
+    for (name, obj, at) in [
+        ("letter", LETTER, [0.0123, 0.0071, 0.8]),
+        ("sphere", sphere.as_str(), [0.0; 3]),
+    ] {
+        let s = scene_with("confocal", &[("o.obj", obj, 0.7, at)]);
+        let geom = SceneGeometry::build(&s);
+        assert!(!Boundary::occlusion_possible(&s, &geom), "{name}");
+        for model in [Model::Tri3, Model::Mc3] {
+            let opts = RenderOptions {
+                model,
+                spp: 16,
+                ..RenderOptions::from_scene(&s)
+            };
+            let with = adjoint::gradient(&s, &geom, &opts, &adj, None).unwrap();
+            let mut off = s.clone();
+            off.render.boundary_terms = false;
+            let without = adjoint::gradient(&off, &geom, &opts, &adj, None).unwrap();
+            assert!(with.boundary && !without.boundary);
+            assert_eq!(with.vertices, without.vertices, "{name} {model:?}");
+            // The terms themselves, run regardless of the test: nothing.
+            assert_eq!(
+                forced_boundary_terms(&s, &opts, &adj),
+                0.0,
+                "{name} {model:?}"
+            );
+        }
+    }
+    let occluding = [
+        vec![
             ("t.obj", LETTER, 0.7, [0.0123, 0.0071, 0.8]),
             ("q.obj", QUAD, 0.5, [0.0, 0.0, 0.0]),
         ],
-    );
-    assert!(Boundary::occlusion_possible(&SceneGeometry::build(&two)));
+        vec![
+            ("a.obj", sphere.as_str(), 0.7, [0.0; 3]),
+            ("b.obj", sphere.as_str(), 0.7, [0.05, 0.0, 0.35]),
+        ],
+        vec![("c.obj", CORNER, 0.7, [0.0; 3])],
+    ];
+    for objects in occluding {
+        let s = scene_with("confocal", &objects);
+        let geom = SceneGeometry::build(&s);
+        assert!(Boundary::occlusion_possible(&s, &geom), "{}", objects[0].0);
+        let opts = RenderOptions {
+            model: Model::Tri3,
+            ..RenderOptions::from_scene(&s)
+        };
+        if objects[0].0 == "a.obj" {
+            // One sphere behind the other: the terms are not zero.
+            assert!(forced_boundary_terms(&s, &opts, &adj) > 0.0);
+        }
+    }
+}
+
+/// The largest vertex entry of the boundary terms over all measurements, run whether or
+/// not occlusion is possible.
+fn forced_boundary_terms(s: &Scene, opts: &RenderOptions, adj: &[f32]) -> f64 {
+    let geom = SceneGeometry::build(s);
+    let film = umbra::film::Film::new(&s.film);
+    let b = umbra::adjoint::boundary::Boundary::new(s, &film, opts);
+    let mut views = umbra::adjoint::edge_nodes::ViewCache::default();
+    let mut terms: Vec<Vec<[f64; 3]>> = s
+        .objects
+        .iter()
+        .map(|o| vec![[0.0; 3]; o.mesh.positions.len()])
+        .collect();
+    for m in 0..s.num_measurements() {
+        let ctx = umbra::transport::MeasurementCtx::new(s, &geom, &film, m);
+        let adj_m = &adj[m * film.bins..(m + 1) * film.bins];
+        b.measurement(s, &ctx, m, &film, adj_m, &mut views, &mut terms);
+    }
+    terms
+        .iter()
+        .flatten()
+        .flatten()
+        .fold(0.0, |a, g| a.max(g.abs()))
 }

@@ -142,8 +142,8 @@ pub fn gradient(
     let chunks = MAX_CHUNKS.min(measurements).max(1);
     let spp = opts.spp.max(1);
     let boundary = boundary_terms_apply(scene, opts);
-    let edges =
-        (boundary && Boundary::occlusion_possible(geom)).then(|| Boundary::new(scene, film, opts));
+    let edges = (boundary && Boundary::occlusion_possible(scene, geom))
+        .then(|| Boundary::new(scene, film, opts));
     // tri3's interior pass runs blocks outer over every measurement: the contexts are
     // built once, for it and the boundary terms.
     let tri3_ctxs: Option<Vec<MeasurementCtx>> = driver.tri3.as_ref().map(|_| {

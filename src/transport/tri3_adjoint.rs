@@ -2,15 +2,16 @@
 //! the gradient costs about what the render does.
 //!
 //! For each block of eight sub-triangles ([`super::tri3_kernel`]) and each measurement:
-//! 1. the forward pass's own [`TriBlock::pulses`] gives the eight pulses and the sort's
-//!    permutation, visibility as in the render;
+//! 1. the forward pass's own per-lane loop ([`TriBlock::pulses_keeping`]) gives the eight
+//!    pulses, the sort's permutation, and keeps the legs and corner weights it computed;
+//!    visibility as in the render;
 //! 2. the pulse stage in reverse: box, [`reverse_lanes`] (each lane walks its own pulse's
 //!    inner bin edges, adjoint moments, `pulse_grad` in lanes); Gaussian, and the few lanes
 //!    the box lanes leave (a piece narrower than `NARROW`, a pulse over more than
 //!    `MAX_EDGES` edges), [`Film::triangle_bins_reverse`] in `f64`, as the render splats
 //!    Gaussian pulses in `f64`;
-//! 3. `reverse`: the per-pair physics ([`super::tri3_physics`], the forward's equations,
-//!    here in `f32x8`) in reverse, `∂L/∂` of each sub-triangle's corners, corner `ρ/π`,
+//! 3. `reverse`: the per-pair physics ([`super::tri3_physics`], the forward's equations:
+//!    its kept legs, the plane factor here in `f32x8`) in reverse, `∂L/∂` of each sub-triangle's corners, corner `ρ/π`,
 //!    normal, plane offset and area, accumulated per sub-triangle over all measurements
 //!    ([`BlockGrad`]).
 //!
@@ -26,7 +27,7 @@
 use super::mc3::TRI_PARAMS;
 use super::tri3::Tri3Mesh;
 use super::tri3_kernel::{Frame, PulseBlock, TriBlock, W};
-use super::tri3_physics::{centroid, Legs, Plane, Wall};
+use super::tri3_physics::{KeptLegs, Plane, Wall};
 use super::{MeasurementCtx, Progress};
 use crate::film::{reverse_lanes, Film};
 use crate::scene::{KernelSpec, Visibility};
@@ -102,6 +103,7 @@ fn task(
     let gaussian = matches!(film.kernel, KernelSpec::Gaussian { .. });
     let bins = film.bins;
     let mut pulses = PulseBlock::default();
+    let mut kept = KeptLegs::default();
     for (m, ctx) in ctxs.iter().enumerate() {
         if m % FLUSH == 0 {
             acc.iter_mut().zip(&mut sums).for_each(|(a, s)| a.flush(s));
@@ -122,9 +124,9 @@ fn task(
         seen.iter_mut().for_each(|s| *s = 0);
         for (b, block) in blocks.iter().enumerate() {
             if frame.confocal() {
-                block.pulses::<true>(&frame, &mut pulses);
+                block.pulses_keeping::<true, true>(&frame, &mut pulses, Some(&mut kept));
             } else {
-                block.pulses::<false>(&frame, &mut pulses);
+                block.pulses_keeping::<false, true>(&frame, &mut pulses, Some(&mut kept));
             }
             let base = (first + b) * W;
             if visibility != Visibility::None {
@@ -168,9 +170,9 @@ fn task(
             }
             let order = &pulses.order;
             if frame.confocal() {
-                reverse::<true>(block, &frame, &sorted, order, scale, &mut sums[b]);
+                reverse::<true>(block, &frame, &kept, &sorted, order, scale, &mut sums[b]);
             } else {
-                reverse::<false>(block, &frame, &sorted, order, scale, &mut sums[b]);
+                reverse::<false>(block, &frame, &kept, &sorted, order, scale, &mut sums[b]);
             }
         }
     }
@@ -193,7 +195,8 @@ pub struct BlockGrad {
 }
 
 /// The reverse of [`TriBlock::pulses`] for all eight lanes at once, through the same
-/// physics ([`super::tri3_physics`] in `f32x8`): given each lane's `∂L/∂(t, w, A)` of its
+/// physics ([`super::tri3_physics`]: the legs and weights the forward loop `kept`, the plane
+/// factor in `f32x8`): given each lane's `∂L/∂(t, w, A)` of its
 /// pulse in sorted slots (`sorted`, `t` in bins), the sort's `order` and the measurement's
 /// `scale`, adds `∂L/∂` of each sub-triangle's corners, corner `ρ/π`, normal, plane offset
 /// and area into `acc` (the last three chained to the corners by [`chain`]). The chain
@@ -208,6 +211,7 @@ pub struct BlockGrad {
 fn reverse<const CONFOCAL: bool>(
     block: &TriBlock,
     f: &Frame,
+    kept: &KeptLegs,
     sorted: &[[f32; W]; 7],
     order: &[[f32; W]; 3],
     scale: f32,
@@ -237,15 +241,15 @@ fn reverse<const CONFOCAL: bool>(
     let two_sided = v(&block.two_sided).cmp_gt(zero);
     let n = [0, 1, 2].map(|k| v(&block.n[k]));
     let plane = Plane::new::<CONFOCAL>(&wall, n, v(&block.plane), two_sided, retro);
-    let corners: [[f32x8; 3]; 3] = std::array::from_fn(|i| [0, 1, 2].map(|k| v(&block.p[i][k])));
     let sum = g_t[0] + g_t[1] + g_t[2];
     let mut g_factor = zero;
     let mut g_v = [[zero; 3]; 3];
     for i in 0..3 {
-        let legs = Legs::new::<CONFOCAL>(&wall, corners[i]);
+        // The forward's legs of this corner and its weight (`pulses_keeping`).
+        let legs = kept.legs[i].lanes();
         let g_tau = (g_t[i] - sum * f32x8::splat(0.25)) * wall.inv_width;
         let (u_l, u_s) = (one / legs.r_l, one / legs.r_s);
-        let k_i = legs.weight(retro);
+        let k_i = v(&kept.weight[i]);
         let brdf = v(&block.brdf[i]);
         g_factor += g_w[i] * brdf * k_i;
         let g_k = g_w[i] * plane.factor;
@@ -263,7 +267,7 @@ fn reverse<const CONFOCAL: bool>(
         }
     }
     // The centroid's OPL, a third per corner.
-    let c = Legs::new::<CONFOCAL>(&wall, centroid(corners));
+    let c = kept.legs[3].lanes();
     let g_c = sum * f32x8::splat(0.75 / 3.0) * wall.inv_width;
     let (u_l, u_s) = (one / c.r_l, one / c.r_s);
     for i in 0..3 {
@@ -404,7 +408,11 @@ mod tests {
                     (0..7).for_each(|i| g[i][j] = gk[i]);
                     let (mut acc, mut sum) = (BlockGrad::default(), BlockSum::default());
                     let order = [0.0, 1.0, 2.0].map(|i| [i; W]);
-                    reverse::<true>(&mesh.blocks[b], &frame, &g, &order, 1.0, &mut sum);
+                    let mut kept = KeptLegs::default();
+                    let mut pulses = PulseBlock::default();
+                    let block = &mesh.blocks[b];
+                    block.pulses_keeping::<true, true>(&frame, &mut pulses, Some(&mut kept));
+                    reverse::<true>(block, &frame, &kept, &g, &order, 1.0, &mut sum);
                     acc.flush(&mut sum);
                     let mut got = [0.0; TRI_PARAMS];
                     chain(&mesh, k, &acc, j, &mut got);

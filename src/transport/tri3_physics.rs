@@ -232,3 +232,54 @@ pub fn centroid<N: Lane>([a, b, c]: [V3<N>; 3]) -> V3<N> {
     let third = N::splat(1.0 / 3.0);
     [0, 1, 2].map(|k| (a[k] + b[k] + c[k]) * third)
 }
+
+/// [`Legs`] of eight lanes kept by the forward's per-lane loop (`TriBlock::pulses_keeping`)
+/// for the adjoint's reverse, which reads them as `f32x8` instead of computing them again.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct LegLanes {
+    d_l: [[f32; 8]; 3],
+    r2_l: [f32; 8],
+    r_l: [f32; 8],
+    c_l: [f32; 8],
+    d_s: [[f32; 8]; 3],
+    r2_s: [f32; 8],
+    r_s: [f32; 8],
+    c_s: [f32; 8],
+}
+
+impl LegLanes {
+    /// Stores lane `j`.
+    #[inline(always)]
+    pub fn put(&mut self, j: usize, l: &Legs<f32>) {
+        for k in 0..3 {
+            self.d_l[k][j] = l.d_l[k];
+            self.d_s[k][j] = l.d_s[k];
+        }
+        (self.r2_l[j], self.r_l[j], self.c_l[j]) = (l.r2_l, l.r_l, l.c_l);
+        (self.r2_s[j], self.r_s[j], self.c_s[j]) = (l.r2_s, l.r_s, l.c_s);
+    }
+
+    /// All eight lanes.
+    #[inline(always)]
+    pub fn lanes(&self) -> Legs<f32x8> {
+        let v = |a: &[f32; 8]| f32x8::new(*a);
+        Legs {
+            d_l: self.d_l.each_ref().map(v),
+            r2_l: v(&self.r2_l),
+            r_l: v(&self.r_l),
+            c_l: v(&self.c_l),
+            d_s: self.d_s.each_ref().map(v),
+            r2_s: v(&self.r2_s),
+            r_s: v(&self.r_s),
+            c_s: v(&self.c_s),
+        }
+    }
+}
+
+/// What the forward's per-lane loop keeps for the reverse: the legs of the three corners
+/// and of the centroid (`legs[3]`), and each corner's weight `k_i` ([`Legs::weight`]).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct KeptLegs {
+    pub legs: [LegLanes; 4],
+    pub weight: [[f32; 8]; 3],
+}

@@ -205,13 +205,7 @@ impl WithSpot for Scene {
 #[test]
 fn same_output_for_any_thread_count() {
     let s = t_scene("confocal", "max_bounces = 6");
-    let run = |threads| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        pool.install(|| render(&s, Model::Path, 3000, 42))
-    };
+    let run = |threads| on_threads(threads, || render(&s, Model::Path, 3000, 42));
     let a = run(1);
     let b = run(2);
     let c = run(3);

@@ -316,11 +316,9 @@ fn sampled_boundary_nodes_agree_with_the_quadrature_and_ignore_threads() {
         ..RenderOptions::from_scene(&s)
     };
     let run = |threads| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap()
-            .install(|| gradient(&s, &geom, &opts, &lambda, None).unwrap())
+        on_threads(threads, || {
+            gradient(&s, &geom, &opts, &lambda, None).unwrap()
+        })
     };
     let (a, b) = (run(1), run(3));
     assert!(a.boundary && a.boundary_nodes > 0);

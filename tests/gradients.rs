@@ -341,11 +341,9 @@ fn gradient_does_not_depend_on_threads() {
             ..RenderOptions::from_scene(&s)
         };
         let run = |threads| {
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap()
-                .install(|| adjoint::gradient(&s, &geom, &opts, &adj, None).unwrap())
+            on_threads(threads, || {
+                adjoint::gradient(&s, &geom, &opts, &adj, None).unwrap()
+            })
         };
         let (a, b) = (run(1), run(3));
         assert_eq!(a.vertices, b.vertices, "{model:?}");

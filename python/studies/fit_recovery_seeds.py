@@ -11,7 +11,7 @@ table gives each build's mean and spread of the seen-surface Chamfer and of the 
         [--seeds 0,1,2] [--cases letter_angled:plane,...] [--out out/studies-seeds]
         [--docs docs/studies]
 
-Writes docs/studies/recovery_seeds.md. Each (case, seed) uses a copy of the case's scene
+Writes docs/studies/recovery_seeds.md (or `--table`). Each (case, seed) uses a copy of the case's scene
 with `[render] seed` changed, written beside it in scenes/studies/ (its mesh paths are
 relative) and removed afterwards.
 """
@@ -55,6 +55,7 @@ def main():
     ap.add_argument("--out", default=os.path.join(ROOT, "out", "studies-seeds"))
     ap.add_argument("--docs", default=os.path.join(ROOT, "docs", "studies"))
     ap.add_argument("--target-spp", type=int, default=4096)
+    ap.add_argument("--table", default="recovery_seeds.md", help="file name under --docs")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     builds = {"before": args.before, "after": args.after}
@@ -91,7 +92,7 @@ def main():
         lines.append(f"| {scene} from {init} | {cb[0]:.2f} ± {cb[1]:.2f} | {ca[0]:.2f} ± {ca[1]:.2f} "
                      f"| {pairs} | {tb[0]:.1f} ± {tb[1]:.1f} | {ta[0]:.1f} ± {ta[1]:.1f} |")
     os.makedirs(args.docs, exist_ok=True)
-    with open(os.path.join(args.docs, "recovery_seeds.md"), "w") as f:
+    with open(os.path.join(args.docs, args.table), "w") as f:
         f.write("\n".join(lines) + "\n")
     print("\n".join(lines))
 

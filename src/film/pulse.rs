@@ -332,11 +332,12 @@ impl Film {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::scene::FilmSpec;
 
-    fn film(kernel: KernelSpec) -> Film {
+    /// A film of 200 bins of 1 cm from 1 m (the pulse tests').
+    pub(crate) fn film(kernel: KernelSpec) -> Film {
         Film::new(&FilmSpec {
             temporal_bins: 200,
             bin_width_opl: 0.01,

@@ -304,16 +304,9 @@ fn gauss_edge(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scene::{FilmSpec, KernelSpec};
+    use crate::scene::KernelSpec;
 
-    fn film(kernel: KernelSpec) -> Film {
-        Film::new(&FilmSpec {
-            temporal_bins: 200,
-            bin_width_opl: 0.01,
-            start_opl: 1.0,
-            kernel,
-        })
-    }
+    use crate::film::pulse::tests::film;
 
     fn adj(b: usize) -> f64 {
         ((b * 7 % 11) as f64 - 5.0) * 0.1

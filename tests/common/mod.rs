@@ -296,3 +296,12 @@ pub fn moved(s: &Scene, (o, v, k): (usize, usize, usize), h: f64) -> (Scene, f64
     let step = (*x - old) as f64;
     (m, step)
 }
+
+/// `f` on a pool of `threads` threads (the thread-count independence tests).
+pub fn on_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap()
+        .install(f)
+}

@@ -450,7 +450,7 @@ fn integrand(ctx: &MeasurementCtx, p: &Point, node: &Node, other: Vec3) -> Optio
     let r2 = r_other * r_other;
     let g_other = (c_other * cw_other).abs() / (r2 * r2);
     let f_x = tri.albedo_at(p.bary) * FRAC_1_PI;
-    let c = ctx.power * ctx.f_wall * ctx.f_wall;
+    let c = ctx.three_bounce_constant();
     Some((
         c * f_x * node.cos_o * node.frame.area_per_length() * g_other,
         opl,

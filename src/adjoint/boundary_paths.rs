@@ -171,7 +171,7 @@ impl LongerPaths {
     /// `C cos_o sin φ / r_y² dℓ` of a node seen from a wall point (`C = P (ρ_w/π)²`),
     /// over the probability [`SPLIT`] of the node's walks.
     fn leg_factor(ctx: &MeasurementCtx, node: &Node) -> f64 {
-        let c = ctx.power * ctx.f_wall * ctx.f_wall;
+        let c = ctx.three_bounce_constant();
         (c * node.cos_o * node.frame.area_per_length() * node.length) as f64 * SPLIT as f64
     }
 

@@ -151,7 +151,7 @@ pub fn evaluate<R: Real>(
     let (r2_l, r2_s) = (r_l * r_l, r_s * r_s);
     let geometry = (c_l * cw_l / (r2_l * r2_l) * (c_s * cw_s / (r2_s * r2_s))).abs();
     let f_x = t.albedo_at(bary).s(FRAC_1_PI);
-    let constant = ctx.power * ctx.f_wall * ctx.f_wall / prob;
+    let constant = ctx.three_bounce_constant() / prob;
     Some(((f_x * geometry * area).s(constant), opl))
 }
 

@@ -162,6 +162,12 @@ impl<'a> MeasurementCtx<'a> {
         }
     }
 
+    /// `P (ρ_w/π)²`: the constant factor of every three-bounce contribution (the laser's
+    /// power on the spot and the wall's BRDF at both wall points).
+    pub fn three_bounce_constant(&self) -> f32 {
+        self.power * self.f_wall * self.f_wall
+    }
+
     /// OPL of the laser leg `|laser - x_l|` if counted, else 0.
     pub fn opl_laser_leg(&self, x_l: Vec3) -> f32 {
         self.laser_leg(x_l.to_array())

@@ -76,10 +76,10 @@ impl Transient {
 /// A scene ready to render or differentiate with a resolved model: the one driver both
 /// passes run on.
 pub struct Renderer<'a> {
-    pub(crate) scene: &'a Scene,
-    pub(crate) geom: &'a SceneGeometry,
+    scene: &'a Scene,
+    geom: &'a SceneGeometry,
     /// The options, with `model` resolved.
-    pub(crate) opts: RenderOptions,
+    opts: RenderOptions,
     pub(crate) film: Film,
     /// The model that runs (never `Auto`).
     pub model: Model,

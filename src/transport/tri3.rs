@@ -407,7 +407,7 @@ pub fn render_measurement(
             splat_lanes(&pulses.lanes, bins, &mut scratch.hist32);
         }
     }
-    let scale = ctx.power * ctx.f_wall * ctx.f_wall;
+    let scale = ctx.three_bounce_constant();
     if gaussian {
         for (o, h) in out.iter_mut().zip(&scratch.hist64) {
             *o += (*h * scale as f64) as f32;

@@ -114,7 +114,7 @@ fn task(
             }
             p.work_done.fetch_add(subs.len() as u64, Ordering::Relaxed);
         }
-        let scale = ctx.power * ctx.f_wall * ctx.f_wall;
+        let scale = ctx.three_bounce_constant();
         if !ctx.legs_visible || scale == 0.0 {
             continue;
         }

@@ -151,7 +151,7 @@ pub fn render_measurement(
 ) {
     let mut parents = Vec::new();
     mesh.parent_visibility(visibility, &mut parents);
-    let scale = (ctx.power * ctx.f_wall * ctx.f_wall) as f64;
+    let scale = ctx.three_bounce_constant() as f64;
     for k in 0..mesh.len() {
         if mesh.visible(k, ctx, visibility, &mut parents) {
             let parent = Parent::new(TriParams::constant64(
@@ -182,7 +182,7 @@ pub fn adjoint_measurement(
 ) {
     let mut seen = Vec::new();
     mesh.parent_visibility(visibility, &mut seen);
-    let scale = (ctx.power * ctx.f_wall * ctx.f_wall) as f64;
+    let scale = ctx.three_bounce_constant() as f64;
     for k in 0..mesh.len() {
         if !mesh.visible(k, ctx, visibility, &mut seen) {
             continue;

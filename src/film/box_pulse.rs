@@ -191,6 +191,25 @@ impl PulseLanes {
         self.set(j, &BoxPulse::default(), false);
     }
 
+    /// The earliest corner of a live lane (bins; infinite if none is live).
+    #[inline(always)]
+    pub fn earliest(&self) -> f32 {
+        (0..LANES).fold(f32::INFINITY, |m, j| {
+            select(self.live[j], min(m, self.t[0][j]), m)
+        })
+    }
+
+    /// Moves the live lanes' times by `−by` bins (exact for whole bins off times of the
+    /// same magnitude); dead lanes stay a zero pulse at 0.
+    #[inline(always)]
+    pub fn shift(&mut self, by: f32) {
+        for t in &mut self.t {
+            for (t, &live) in t.iter_mut().zip(&self.live) {
+                *t = select(live, *t - by, 0.0);
+            }
+        }
+    }
+
     /// Sorted corner OPLs (bins), `t[corner][lane]`.
     pub fn t(&self) -> &[[f32; LANES]; 3] {
         &self.t

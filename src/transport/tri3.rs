@@ -135,12 +135,22 @@ impl Tri3Mesh {
                 (b - a).length().max((c - b).length()).max((a - c).length())
             })
             .fold(0.0, f32::max);
-        let corners = m.tris.iter().map(|tri| {
-            (
-                tri.map(|i| m.vertices[i as usize]),
-                tri.map(|i| m.vertex_brdf[i as usize]),
-            )
-        });
+        // The corners in f64 from the original triangle's, as the f64 model has them
+        // (`tri3_exact`): the lanes keep them from their block's origin, where f32 holds
+        // them to ~1e-9 m (their f32 positions are ~1e-7 m off).
+        let corners = m
+            .tris
+            .iter()
+            .zip(&m.corner_bary)
+            .zip(&m.parent)
+            .map(|((tri, bary), &p)| {
+                let v = geom.hidden[p as usize].v.map(|v| v.as_dvec3());
+                let at = |[b1, b2]: [f32; 2]| {
+                    let b0 = 1.0 - b1 - b2;
+                    v[0] * f64::from(b0) + v[1] * f64::from(b1) + v[2] * f64::from(b2)
+                };
+                (bary.map(at), tri.map(|i| m.vertex_brdf[i as usize]))
+            });
         m.blocks = tri3_kernel::pack(
             corners,
             &m.normal,
@@ -162,10 +172,10 @@ impl Tri3Mesh {
         let far = |x: Vec3| f64::from((x - lo).abs().max((x - hi).abs()).length());
         let (x_l, x_s) = (frame.x_l, frame.x_s);
         // In f64: at 1e8 bins an f32 bin index is 8 bins coarse.
-        let (w, offset) = (f64::from(frame.inv_width), f64::from(frame.offset));
-        // The kernel computes each pulse's time in f32 (`(r_l + r_s + offset) w`): its
-        // rounding, a few ulps of the distances, can put a pulse that many bins away
-        // from the exact bound (60 bins for geometry 1 km away with 1 µm bins).
+        let (w, offset) = (frame.inv_width, frame.offset);
+        // The kernel's times are its blocks' origins' (f64) plus f32 leg differences,
+        // which round to a few ulps of the block's extent; the f32 positions of the
+        // block's wall points move them by a few ulps of the distances: bounded as such.
         let rounding = 8.0 * f64::from(f32::EPSILON) * (far(x_l) + far(x_s) + offset.abs()) * w;
         let margin = 1.5 * f64::from(self.longest_edge) * w + rounding + 2.0;
         let t_lo = (near(x_l) + near(x_s) + offset) * w - margin;
@@ -196,9 +206,10 @@ impl Tri3Mesh {
             return (frame, 0, film.bins);
         }
         let (first, len) = self.reach(&frame, film.bins);
-        frame.offset = (f64::from(frame.offset) - first as f64 * film.width) as f32;
-        frame.lo = (f64::from(frame.lo) - first as f64) as f32;
-        frame.hi = (f64::from(frame.hi) - first as f64) as f32;
+        frame.offset -= first as f64 * film.width;
+        frame.lo -= first as f64;
+        frame.hi -= first as f64;
+        frame.bins = len;
         (frame, first, len)
     }
 
@@ -394,17 +405,19 @@ pub fn render_measurement(
                 }
             }
         }
+        // Pulse times count from the block's base bin.
+        let base = pulses.base;
         if gaussian {
             for j in (0..W).filter(|&j| pulses.lanes.live()[j]) {
                 let opl = pulses
                     .lanes
                     .t()
-                    .map(|t| film.start + t[j] as f64 * film.width);
+                    .map(|t| film.start + (base as f64 + t[j] as f64) * film.width);
                 let w = pulses.w.map(|w| w[j] as f64);
                 film.splat_triangle(opl, w, pulses.area[j] as f64, &mut scratch.hist64);
             }
         } else {
-            splat_lanes(&pulses.lanes, bins, &mut scratch.hist32);
+            splat_lanes(&pulses.lanes, bins - base, &mut scratch.hist32[base..]);
         }
     }
     let scale = ctx.three_bounce_constant();

@@ -149,16 +149,16 @@ fn task(
                     &pulses.lanes,
                     &pulses.w,
                     &pulses.area,
-                    &adj[origin..origin + window],
-                    window,
+                    &adj[origin + pulses.base..origin + window],
+                    window - pulses.base,
                 );
                 (lg.g, lg.fallback)
             };
             for j in (0..W).filter(|&j| fallback[j]) {
-                let opl = pulses
-                    .lanes
-                    .t()
-                    .map(|t| film.start + (origin as f64 + t[j] as f64) * film.width);
+                let opl = pulses.lanes.t().map(|t| {
+                    let bin = (origin + pulses.base) as f64 + t[j] as f64;
+                    film.start + bin * film.width
+                });
                 let w = pulses.w.map(|w| w[j] as f64);
                 let gj =
                     film.triangle_bins_reverse(opl, w, pulses.area[j] as f64, |b| adj[b] as f64);
@@ -218,7 +218,7 @@ fn reverse<const CONFOCAL: bool>(
     acc: &mut BlockSum,
 ) {
     let v = |a: &[f32; W]| f32x8::new(*a);
-    let wall = Wall::<f32x8>::new(f);
+    let wall = Wall::<f32x8>::new(f, &f.block(block));
     let (zero, one) = (f32x8::ZERO, f32x8::ONE);
     // Sorted slots to corners.
     let mut g_t = [zero; 3];

@@ -6,7 +6,14 @@
 //! For one measurement (laser spot `x_l`, sensor point `x_s`, wall normal `n_w`) and a
 //! triangle on the plane `n·x = d` with corners `v_i`:
 //!
-//! - corner OPL, in bins: `τ_i = (|x_l − v_i| + |v_i − x_s| + legs − start) / width`;
+//! - corner OPL, in bins: `τ_i = (|x_l − v_i| + |v_i − x_s| + legs − start) / width`,
+//!   computed as `τ_o + (δ_l + δ_s) / width` from the block's origin `o`
+//!   ([`BlockFrame`]): `τ_o` (in `f64`, from a whole bin `base`) and the leg differences
+//!   `δ = |x − v| − |x − o| = −q·((x − v) + (x − o)) / (|x − v| + |x − o|)`, `q = v − o`,
+//!   accurate in `f32` to their own size. (Summed in `f32` from lengths of ~1 m, the
+//!   times of a film's bins ~150 carry ~1e-5 bins of rounding: on sub-triangles whose
+//!   pulses are 1e-3 bins wide, a percent of their width, and of the box kernel's
+//!   gradient where they straddle a bin edge.)
 //! - corner weight (the integrand of the `tri3` module doc at `v_i`):
 //!   `w_i = (ρ_i/π) cos θ_l cos θ_s cos θ_wall,l cos θ_wall,s / (r_l² r_s²)`. On the plane,
 //!   `r_l cos θ_l = n·x_l − d =: p_l` is the same for every corner (likewise `p_s`), and
@@ -24,7 +31,7 @@
 
 use super::tri3_physics::{centroid, KeptLegs, Legs, Plane, Wall};
 use crate::film::{BoxPulse, Film, PulseLanes, LANES};
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 
 /// Triangles per block: the film's splat width, one AVX2 register of `f32`.
 pub const W: usize = LANES;
@@ -35,7 +42,9 @@ type Lanes = [f32; W];
 /// area and albedo, so they compute finite numbers and are never live.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct TriBlock {
-    /// Corner positions, `p[corner][axis][lane]` (m).
+    /// The block's origin `o`: the mean of its corners (m).
+    pub origin: [f64; 3],
+    /// Corner positions from the origin, `v − o`, `p[corner][axis][lane]` (m).
     pub p: [[Lanes; 3]; 3],
     /// Unit normal.
     pub n: [Lanes; 3],
@@ -58,24 +67,73 @@ pub struct Frame {
     pub x_s: Vec3,
     pub n_w: Vec3,
     /// `legs − start` (m): added to the hidden-path length to get OPL from the film's start.
-    pub offset: f32,
+    pub offset: f64,
     /// 1 / bin width (1/m).
-    pub inv_width: f32,
+    pub inv_width: f64,
     /// Pulses entirely outside `[lo, hi)` (bins) cannot reach the film.
-    pub lo: f32,
-    pub hi: f32,
+    pub lo: f64,
+    pub hi: f64,
+    /// The bins the pulses are splatted into, `0 .. bins`.
+    pub bins: usize,
 }
 
 impl Frame {
     pub fn confocal(&self) -> bool {
         self.x_l == self.x_s
     }
+
+    /// The block `b` for this measurement, its times from the bin of its origin's OPL.
+    #[inline]
+    pub fn block(&self, b: &TriBlock) -> BlockFrame {
+        let o = DVec3::from_array(b.origin);
+        let (o_l, o_s) = (self.x_l.as_dvec3() - o, self.x_s.as_dvec3() - o);
+        let (r_l, r_s) = (o_l.length(), o_s.length());
+        let tau = (r_l + r_s + self.offset) * self.inv_width;
+        // The origin's bin, clamped into the bins (a block before the film's start keeps
+        // base 0 and its times from there; one past the end has no live pulse).
+        let base = if tau > 0.0 {
+            (tau.floor() as usize).min(self.bins)
+        } else {
+            0
+        };
+        BlockFrame {
+            o_l: o_l.as_vec3(),
+            o_s: o_s.as_vec3(),
+            r_l: r_l as f32,
+            r_s: r_s as f32,
+            tau: (tau - base as f64) as f32,
+            base,
+            lo: (self.lo - base as f64) as f32,
+            hi: (self.hi - base as f64) as f32,
+        }
+    }
+}
+
+/// A block's origin `o` in one measurement: what its pulse times are measured from.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct BlockFrame {
+    /// `x_l − o`, `x_s − o` (m).
+    pub o_l: Vec3,
+    pub o_s: Vec3,
+    /// `|x_l − o|`, `|x_s − o|` (m, rounded from `f64`).
+    pub r_l: f32,
+    pub r_s: f32,
+    /// The OPL of `o`, in bins from `base` (from `f64`).
+    pub tau: f32,
+    /// The frame's bin that the block's pulse times count from.
+    pub base: usize,
+    /// The frame's `lo`, `hi` from `base`.
+    pub lo: f32,
+    pub hi: f32,
 }
 
 /// Eight pulses: the box splat's lanes, and the corner weights and areas that the
 /// Gaussian splat (`f64`, one pulse at a time) reads besides.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct PulseBlock {
+    /// The times of `lanes` are in bins from the frame's bin `base`, the first that a live
+    /// pulse of the block reaches (or 0).
+    pub base: usize,
     pub lanes: PulseLanes,
     /// Corner weights, in the order of `lanes.t`.
     pub w: [Lanes; 3],
@@ -110,14 +168,17 @@ impl TriBlock {
         out: &mut PulseBlock,
         mut keep: Option<&mut KeptLegs>,
     ) {
-        let wall = Wall::<f32>::new(f);
+        let block = f.block(self);
+        let wall = Wall::<f32>::new(f, &block);
+        out.base = block.base;
         for j in 0..W {
             let retro = self.retro[j] > 0.0;
             let mut tau = [0.0f32; 3];
             let mut vw = [0.0f32; 3];
             for i in 0..3 {
-                let legs = Legs::new::<CONFOCAL>(&wall, self.corner(i, j));
-                tau[i] = wall.bins(legs.r_l, legs.r_s);
+                let q = self.corner(i, j);
+                let legs = Legs::new::<CONFOCAL>(&wall, q);
+                tau[i] = wall.bins::<CONFOCAL>(&legs, q);
                 let k = legs.weight(retro);
                 vw[i] = self.brdf[i][j] * k;
                 if let (true, Some(kept)) = (KEEP, keep.as_deref_mut()) {
@@ -130,20 +191,31 @@ impl TriBlock {
             let g = Plane::new::<CONFOCAL>(&wall, n, self.plane[j], two_sided, retro).factor;
             let w = vw.map(|v| g * v);
             // Curvature shift: the pulse's mean moves to (1/12) Σ τ_i + (3/4) τ(c).
-            let c = Legs::new::<CONFOCAL>(&wall, centroid([0, 1, 2].map(|i| self.corner(i, j))));
+            let q = centroid([0, 1, 2].map(|i| self.corner(i, j)));
+            let c = Legs::new::<CONFOCAL>(&wall, q);
             if let (true, Some(kept)) = (KEEP, keep.as_deref_mut()) {
                 kept.legs[3].put(j, &c);
             }
-            let tau_c = wall.bins(c.r_l, c.r_s);
+            let tau_c = wall.bins::<CONFOCAL>(&c, q);
             let shift = 0.75 * (tau_c - (tau[0] + tau[1] + tau[2]) * (1.0 / 3.0));
             let (p, order) = BoxPulse::new_ordered(tau.map(|t| t + shift), w, self.area[j]);
-            let live = (w[0] + w[1] + w[2] > 0.0) & (p.t[2] >= f.lo) & (p.t[0] < f.hi);
+            let live = (w[0] + w[1] + w[2] > 0.0) & (p.t[2] >= block.lo) & (p.t[0] < block.hi);
             out.lanes.set(j, &p, live);
             for i in 0..3 {
                 out.w[i][j] = p.w[i];
                 out.order[i][j] = order[i];
             }
             out.area[j] = self.area[j];
+        }
+        // From the origin's bin to the first bin of the earliest live pulse, so that the
+        // splat and its reverse see every pulse from its base on (an exact shift: whole
+        // bins off times of the same magnitude), within the frame's bins.
+        let earliest = out.lanes.earliest();
+        if earliest.is_finite() {
+            let first = (block.base as f64 + f64::from(earliest.floor())).clamp(0.0, f.bins as f64);
+            let shift = first as usize as i64 - block.base as i64;
+            out.lanes.shift(shift as f32);
+            out.base = first as usize;
         }
     }
 }
@@ -175,10 +247,11 @@ pub fn block_order(centroid: &[Vec3]) -> Vec<usize> {
     idx
 }
 
-/// Packs sub-triangles into blocks of [`W`].
+/// Packs sub-triangles into blocks of [`W`]: `corners` in `f64` (the sub-triangle's
+/// corners from its original triangle's, the lanes store them from the block's origin).
 #[allow(clippy::too_many_arguments)]
 pub fn pack(
-    corners: impl ExactSizeIterator<Item = ([Vec3; 3], [f32; 3])>,
+    corners: impl ExactSizeIterator<Item = ([DVec3; 3], [f32; 3])>,
     normal: &[Vec3],
     plane: &[f32],
     area: &[f32],
@@ -186,9 +259,15 @@ pub fn pack(
     retro: &[bool],
 ) -> Vec<TriBlock> {
     let count = corners.len();
+    let corners: Vec<_> = corners.collect();
     let mut blocks = vec![TriBlock::default(); count.div_ceil(W)];
+    for (b, block) in blocks.iter_mut().enumerate() {
+        let own = &corners[b * W..((b + 1) * W).min(count)];
+        let sum = own.iter().flat_map(|(v, _)| v).sum::<DVec3>();
+        block.origin = (sum / (3 * own.len()) as f64).to_array();
+    }
     let mut last = None;
-    for (k, (v, brdf)) in corners.enumerate() {
+    for (k, &(v, brdf)) in corners.iter().enumerate() {
         put(
             &mut blocks[k / W],
             k % W,
@@ -224,7 +303,7 @@ pub fn pack(
 fn put(
     b: &mut TriBlock,
     j: usize,
-    v: [Vec3; 3],
+    v: [DVec3; 3],
     brdf: [f32; 3],
     n: Vec3,
     plane: f32,
@@ -232,9 +311,10 @@ fn put(
     two_sided: bool,
     retro: bool,
 ) {
+    let o = DVec3::from_array(b.origin);
     for i in 0..3 {
-        for (axis, x) in v[i].to_array().into_iter().enumerate() {
-            b.p[i][axis][j] = x;
+        for (axis, x) in (v[i] - o).to_array().into_iter().enumerate() {
+            b.p[i][axis][j] = x as f32;
         }
         b.brdf[i][j] = brdf[i];
         b.n[i][j] = n[i];
@@ -247,15 +327,16 @@ fn put(
 
 /// The measurement's frame for the film `film`.
 pub fn frame(ctx: &super::MeasurementCtx, film: &Film) -> Frame {
-    let inv_width = (1.0 / film.width) as f32;
-    let start = film.start as f32;
+    let inv_width = 1.0 / film.width;
+    let start = film.start;
     Frame {
         x_l: ctx.x_l,
         x_s: ctx.x_s,
         n_w: ctx.n_w,
-        offset: ctx.opl_laser_leg(ctx.x_l) + ctx.opl_sensor_leg - start,
+        offset: f64::from(ctx.opl_laser_leg(ctx.x_l) + ctx.opl_sensor_leg) - start,
         inv_width,
-        lo: (ctx.opl_min - start) * inv_width,
-        hi: (ctx.opl_max - start) * inv_width,
+        lo: (f64::from(ctx.opl_min) - start) * inv_width,
+        hi: (f64::from(ctx.opl_max) - start) * inv_width,
+        bins: film.bins,
     }
 }

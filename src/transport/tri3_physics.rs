@@ -5,7 +5,7 @@
 //! evaluate the same expressions. The `f64` dual-number model ([`super::tri3_exact`]) is
 //! the oracle both are tested against.
 
-use super::tri3_kernel::Frame;
+use super::tri3_kernel::{BlockFrame, Frame};
 use crate::film::Arith;
 use std::ops::BitAnd;
 use wide::{f32x8, CmpGt};
@@ -91,33 +91,56 @@ pub fn sub<N: Lane>(a: V3<N>, b: V3<N>) -> V3<N> {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 
-/// The measurement's wall points and time scale, in lanes.
+/// The measurement's wall points and time scale for one block, in lanes: points of the
+/// block are given from its origin `o` ([`BlockFrame`]).
 #[derive(Clone, Copy)]
 pub struct Wall<N> {
+    /// The wall points and normal (m; absolute, for the plane terms).
     pub x_l: V3<N>,
     pub x_s: V3<N>,
     pub n_w: V3<N>,
-    offset: N,
+    /// The wall points from the block's origin, `x − o`, and their lengths.
+    o_l: V3<N>,
+    o_s: V3<N>,
+    r_l: N,
+    r_s: N,
+    /// The origin's OPL in bins from the block's base.
+    tau: N,
     pub inv_width: N,
 }
 
 impl<N: Lane> Wall<N> {
     #[inline(always)]
-    pub fn new(f: &Frame) -> Self {
+    pub fn new(f: &Frame, b: &BlockFrame) -> Self {
         let v = |x: glam::Vec3| x.to_array().map(N::splat);
         Wall {
             x_l: v(f.x_l),
             x_s: v(f.x_s),
             n_w: v(f.n_w),
-            offset: N::splat(f.offset),
-            inv_width: N::splat(f.inv_width),
+            o_l: v(b.o_l),
+            o_s: v(b.o_s),
+            r_l: N::splat(b.r_l),
+            r_s: N::splat(b.r_s),
+            tau: N::splat(b.tau),
+            inv_width: N::splat(f.inv_width as f32),
         }
     }
 
-    /// OPL in bins from the film's start of a point at distances `r_l`, `r_s`.
+    /// OPL in bins from the block's base of the point `q` (from the origin) with legs
+    /// `legs`: the origin's, plus each leg's difference to the origin's leg,
+    /// `|x − v| − |x − o| = −q·((x − v) + (x − o)) / (|x − v| + |x − o|)` (no cancellation).
     #[inline(always)]
-    pub fn bins(&self, r_l: N, r_s: N) -> N {
-        (r_l + r_s + self.offset) * self.inv_width
+    pub fn bins<const CONFOCAL: bool>(&self, legs: &Legs<N>, q: V3<N>) -> N {
+        let diff = |d: V3<N>, o: V3<N>, r: N, r_o: N| {
+            -dot(q, [d[0] + o[0], d[1] + o[1], d[2] + o[2]]) / (r + r_o)
+        };
+        let dl = diff(legs.d_l, self.o_l, legs.r_l, self.r_l);
+        let ds = if CONFOCAL {
+            dl
+        } else {
+            diff(legs.d_s, self.o_s, legs.r_s, self.r_s)
+        };
+        self.tau + (dl + ds) * self.inv_width
     }
 }
 
@@ -136,10 +159,11 @@ pub struct Legs<N> {
 }
 
 impl<N: Lane> Legs<N> {
-    /// `CONFOCAL` (`x_l == x_s`) skips the second distance.
+    /// The legs of the point `q` (from the block's origin). `CONFOCAL` (`x_l == x_s`)
+    /// skips the second distance.
     #[inline(always)]
-    pub fn new<const CONFOCAL: bool>(w: &Wall<N>, v: V3<N>) -> Legs<N> {
-        let d_l = sub(w.x_l, v);
+    pub fn new<const CONFOCAL: bool>(w: &Wall<N>, q: V3<N>) -> Legs<N> {
+        let d_l = sub(w.o_l, q);
         let r2_l = dot(d_l, d_l);
         let (r_l, c_l) = (r2_l.sqrt(), -dot(w.n_w, d_l));
         if CONFOCAL {
@@ -154,7 +178,7 @@ impl<N: Lane> Legs<N> {
                 c_s: c_l,
             };
         }
-        let d_s = sub(w.x_s, v);
+        let d_s = sub(w.o_s, q);
         let r2_s = dot(d_s, d_s);
         Legs {
             d_l,

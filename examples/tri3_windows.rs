@@ -19,7 +19,7 @@ fn main() {
         let ctx = MeasurementCtx::new(&scene, &geom, &film, m);
         let frame = tri3_kernel::frame(&ctx, &film);
         for block in &mesh.blocks {
-            block.pulses::<true>(&frame, &mut pulses);
+            block.pulses::<true>(&frame, &frame.block(block), &mut pulses);
             let [t0, _, t2] = pulses.lanes.t();
             let first = (0..LANES)
                 .map(|j| t0[j].floor())

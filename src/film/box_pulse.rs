@@ -191,25 +191,6 @@ impl PulseLanes {
         self.set(j, &BoxPulse::default(), false);
     }
 
-    /// The earliest corner of a live lane (bins; infinite if none is live).
-    #[inline(always)]
-    pub fn earliest(&self) -> f32 {
-        (0..LANES).fold(f32::INFINITY, |m, j| {
-            select(self.live[j], min(m, self.t[0][j]), m)
-        })
-    }
-
-    /// Moves the live lanes' times by `−by` bins (exact for whole bins off times of the
-    /// same magnitude); dead lanes stay a zero pulse at 0.
-    #[inline(always)]
-    pub fn shift(&mut self, by: f32) {
-        for t in &mut self.t {
-            for (t, &live) in t.iter_mut().zip(&self.live) {
-                *t = select(live, *t - by, 0.0);
-            }
-        }
-    }
-
     /// Sorted corner OPLs (bins), `t[corner][lane]`.
     pub fn t(&self) -> &[[f32; LANES]; 3] {
         &self.t
@@ -262,30 +243,40 @@ pub const MAX_WINDOW: usize = 24;
 pub const SPLAT_PAD: usize = 64;
 
 /// Adds the live ones of eight pulses into `hist[..bins]` through the box kernel; bin
-/// `b` of the result is `hist[b].iter().sum()`. `hist` holds `bins + 1` rows at least
-/// (`bins + SPLAT_PAD` for the fast path): rows past `bins` are scratch.
+/// `b` of the result is `hist[b].iter().sum()`. The pulses' times are in bins from row
+/// `base` of `hist` (any whole number: negative before the first row; the `tri3` kernel
+/// measures each block's times from its own origin, so they stay small and exact in `f32`).
+/// `hist` holds `bins + 1` rows at least (`bins + SPLAT_PAD` for the fast path): rows past
+/// `bins` are scratch.
 ///
-/// Bin `b` receives `G(b + 1) − G(b)` of every pulse. The eight pulses of a block are
-/// neighbouring sub-triangles, so their OPL ranges overlap: over the window of bins that
-/// any of them reaches, [`splat_window`] evaluates `G` at each edge for all eight lanes
-/// at once and adds the differences to that bin's row with one vector add, no scatter.
-/// Wider windows (blocks straddling a fold or a row of the mesh) go to
+/// Bin `b` receives `G(b + 1 − base) − G(b − base)` of every pulse. The eight pulses of a
+/// block are neighbouring sub-triangles, so their OPL ranges overlap: over the window of
+/// bins that any of them reaches, [`splat_window`] evaluates `G` at each edge for all eight
+/// lanes at once and adds the differences to that bin's row with one vector add, no
+/// scatter. Wider windows (blocks straddling a fold or a row of the mesh) go to
 /// [`splat_scatter`], which walks each pulse's own bins.
 #[inline]
-pub fn splat_lanes(p: &PulseLanes, bins: usize, hist: &mut [LaneRow]) {
-    match window_of(p, bins) {
-        Some((first, window)) if window <= MAX_WINDOW => splat_window(p, first, window, hist),
-        Some(_) => splat_scatter(p, bins, hist),
+pub fn splat_lanes(p: &PulseLanes, base: i64, bins: usize, hist: &mut [LaneRow]) {
+    match window_of(p, base, bins) {
+        Some((first, window)) if window <= MAX_WINDOW => splat_window(p, base, first, window, hist),
+        Some(_) => splat_scatter(p, base, bins, hist),
         None => {}
     }
 }
 
-/// The bins `first .. first + window` that the live lanes of `p` reach within
+/// The whole bin at or below `t` (bins from `base`), as a row of the histogram: `t` is
+/// finite in a live lane, and clamped first so that the conversion is exact.
+#[inline(always)]
+fn row_of(t: f32, base: i64) -> i64 {
+    const FAR: f32 = (1 << 24) as f32;
+    t.clamp(-FAR, FAR).floor() as i64 + base
+}
+
+/// The rows `first .. first + window` that the live lanes of `p` reach within
 /// `[0, bins)`; `None` without a live lane.
 #[inline(always)]
-fn window_of(p: &PulseLanes, bins: usize) -> Option<(usize, usize)> {
-    let nbins = bins as f32;
-    let (mut lo, mut hi) = (nbins, 0.0f32);
+fn window_of(p: &PulseLanes, base: i64, bins: usize) -> Option<(usize, usize)> {
+    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
     let mut any = false;
     for j in 0..LANES {
         let live = p.live[j];
@@ -293,18 +284,22 @@ fn window_of(p: &PulseLanes, bins: usize) -> Option<(usize, usize)> {
         lo = select(live, min(lo, p.t[0][j]), lo);
         hi = select(live, max(hi, p.t[2][j]), hi);
     }
-    // Clamped into [0, bins] (NaN picks a bound), so the conversions are exact.
-    let first = min(max(lo, 0.0), nbins) as usize;
-    let last = (max(min(hi, nbins - 1.0), 0.0) as usize).max(first);
-    any.then(|| (first, (last + 1 - first).min(bins - first)))
+    if !any || bins == 0 {
+        return None;
+    }
+    let n = bins as i64;
+    let first = row_of(lo, base).clamp(0, n);
+    let last = row_of(hi, base).clamp(0, n - 1).max(first);
+    Some((first as usize, (last + 1 - first).min(n - first) as usize))
 }
 
-/// Bins `first .. first + window` of every lane: one vector `G` per edge, one vector
-/// add per bin.
+/// Rows `first .. first + window` of every lane: one vector `G` per edge, one vector add
+/// per bin.
 #[inline(always)]
-fn splat_window(p: &PulseLanes, first: usize, window: usize, hist: &mut [LaneRow]) {
+fn splat_window(p: &PulseLanes, base: i64, first: usize, window: usize, hist: &mut [LaneRow]) {
     let cdf = LaneCdf::new(p);
-    let mut x = f32x8::splat(first as f32);
+    // Edges in the pulses' own bins: whole numbers, exact in f32.
+    let mut x = f32x8::splat((first as i64 - base) as f32);
     let mut prev = cdf.at(x);
     for row in &mut hist[first..first + window] {
         x += f32x8::ONE;
@@ -315,34 +310,32 @@ fn splat_window(p: &PulseLanes, first: usize, window: usize, hist: &mut [LaneRow
 }
 
 /// Each lane over its own bins: step `m` evaluates `G` at edge `k_j + m + 1` of every
-/// pulse `j` at once (`k_j` the first edge at or below the pulse) and adds
+/// pulse `j` at once (`k_j` the first row at or below the pulse) and adds
 /// `G(k_j + m + 1) − G(k_j + m)` to lane `j` of row `k_j + m`.
-fn splat_scatter(p: &PulseLanes, bins: usize, hist: &mut [LaneRow]) {
-    let last = bins as i32;
+fn splat_scatter(p: &PulseLanes, base: i64, bins: usize, hist: &mut [LaneRow]) {
+    let last = bins as i64;
     let hist_len = hist.len();
     assert!(
         hist_len > bins,
         "splat_scatter: the histogram needs a scratch row"
     );
-    let nbins = bins as f32;
     let mut first = [last; LANES];
-    let mut span = [0i32; LANES];
+    let mut span = [0i64; LANES];
     for j in 0..LANES {
-        let (t0, t2) = (p.t[0][j], p.t[2][j]);
-        let inside = p.live[j] & (t2 >= 0.0) & (t0 < nbins);
-        let (lo, hi) = (min(max(t0, 0.0), nbins), max(min(t2, nbins), 0.0));
-        // SAFETY: lo and hi are finite and in [0, bins], which i32 represents.
-        let (k, end) = unsafe { (lo.to_int_unchecked::<i32>(), hi.to_int_unchecked::<i32>()) };
+        let (k0, k2) = (row_of(p.t[0][j], base), row_of(p.t[2][j], base));
+        let inside = p.live[j] & (k2 >= 0) & (k0 < last);
+        let (k, end) = (k0.clamp(0, last), k2.clamp(0, last));
         first[j] = if inside { k } else { last };
         // Past every edge at or below t2: a point mass at t1 = t2 = k lands in bin k.
         span[j] = if inside { end + 1 - k } else { 0 };
     }
     let steps = span.into_iter().max().unwrap_or(0);
     let cdf = LaneCdf::new(p);
-    let mut prev = cdf.at(f32x8::new(first.map(|k| k as f32)));
+    let edge = |m: i64| f32x8::new(first.map(|k| (k - base + m) as f32));
+    let mut prev = cdf.at(edge(0));
     let fast = (steps as usize) < SPLAT_PAD && hist_len >= bins + SPLAT_PAD;
     for m in 0..steps {
-        let g = cdf.at(f32x8::new(first.map(|k| (k + m + 1) as f32)));
+        let g = cdf.at(edge(m + 1));
         let add = (g - prev).to_array();
         for (j, add) in add.into_iter().enumerate() {
             let bin = first[j] + m;
@@ -353,7 +346,7 @@ fn splat_scatter(p: &PulseLanes, bins: usize, hist: &mut [LaneRow]) {
                 // SAFETY: bin < bins + SPLAT_PAD <= hist_len (checked above).
                 unsafe { hist.get_unchecked_mut(bin as usize)[j] += add };
             } else {
-                hist[if bin < last { bin } else { last } as usize][j] += add;
+                hist[bin.min(last) as usize][j] += add;
             }
         }
         prev = g;
@@ -409,16 +402,16 @@ mod tests {
         let sum = |h: Vec<LaneRow>| h[..bins].iter().map(|r| r.iter().sum()).collect();
         let p = *pulses;
         let mut window = vec![[0.0; LANES]; bins + 1];
-        if let Some((first, n)) = window_of(&p, bins) {
-            splat_window(&p, first, n, &mut window);
+        if let Some((first, n)) = window_of(&p, 0, bins) {
+            splat_window(&p, 0, first, n, &mut window);
         }
         let mut fast = vec![[0.0; LANES]; bins + SPLAT_PAD];
-        splat_scatter(&p, bins, &mut fast);
+        splat_scatter(&p, 0, bins, &mut fast);
         let mut clamped = vec![[0.0; LANES]; bins + 1];
-        splat_scatter(&p, bins, &mut clamped);
+        splat_scatter(&p, 0, bins, &mut clamped);
         // splat_lanes picks one of them.
         let mut picked = vec![[0.0; LANES]; bins + SPLAT_PAD];
-        splat_lanes(pulses, bins, &mut picked);
+        splat_lanes(pulses, 0, bins, &mut picked);
         let picked: Vec<f32> = sum(picked);
         let all = [sum(window), sum(fast), sum(clamped)];
         assert!(all.contains(&picked));
@@ -446,6 +439,35 @@ mod tests {
         // One pulse: the same edges, the same differences.
         assert_eq!(window, fast, "window and scatter differ");
         window
+    }
+
+    /// Times from another base row, by whole bins, give the same bins: before the film's
+    /// first row (negative base, the pulse cut there), inside it, through the window and
+    /// the scatter.
+    #[test]
+    fn a_base_row_moves_the_times_by_whole_bins() {
+        let bins = 40;
+        let pulses = [
+            BoxPulse::new([-1.25, 0.5, 2.125], [0.3, 1.1, 0.7], 0.37),
+            BoxPulse::new([10.25, 11.5, 12.125], [1.0, 0.5, 2.0], 0.2),
+            BoxPulse::new([5.0, 38.5, 45.0], [1.0; 3], 0.5),
+        ];
+        for live in [[true, true, false], [true, true, true]] {
+            let at = |base: i64| {
+                let moved: Vec<BoxPulse> = pulses
+                    .iter()
+                    .map(|p| BoxPulse::new(p.t.map(|t| t - base as f32), p.w, 0.3))
+                    .collect();
+                let mut h = vec![[0.0; LANES]; bins + SPLAT_PAD];
+                splat_lanes(&lanes(&moved, &live), base, bins, &mut h);
+                h[..bins].iter().map(|r| r.iter().sum()).collect::<Vec<f32>>()
+            };
+            let want = at(0);
+            assert!(want.iter().any(|&v| v > 0.0));
+            for base in [-3, 4, 9] {
+                assert_eq!(at(base), want, "base {base}, live {live:?}");
+            }
+        }
     }
 
     #[test]

@@ -27,8 +27,9 @@ pub struct LaneGrad {
 /// of `z` (up to `MAX_EDGES³`) cancel in `f32` (at 45 edges the area slot is 2e-4 off).
 const MAX_EDGES: i32 = 16;
 
-/// The reverse of [`super::splat_lanes`] for pulses `p` with sorted corner weights `w`
-/// and areas `area`, given `adj[b] = δH_b` for the `bins` bins the splat writes.
+/// The reverse of [`super::splat_lanes`] for pulses `p` (times in bins from row `base`)
+/// with sorted corner weights `w` and areas `area`, given `adj[b] = δH_b` for the `bins`
+/// bins the splat writes.
 ///
 /// Each lane walks only the edges inside its own pulse, `t0 < k < t2` (one to three for
 /// the sub-triangles `tri3` makes; the eight lanes step together, as the forward's
@@ -39,12 +40,15 @@ pub fn reverse_lanes(
     w: &[[f32; LANES]; 3],
     area: &[f32; LANES],
     adj: &[f32],
+    base: i64,
     bins: usize,
 ) -> LaneGrad {
     let t = p.t();
+    // Edge and bin numbers below are the pulses' own (from `base`).
     let at = |k: i32| {
-        if k >= 0 && (k as usize) < bins {
-            adj[k as usize]
+        let row = i64::from(k) + base;
+        if row >= 0 && (row as usize) < bins {
+            adj[row as usize]
         } else {
             0.0
         }
@@ -60,15 +64,16 @@ pub fn reverse_lanes(
     let [t0, t1, t2] = t.map(f32x8::new);
     let live = f32x8::new(p.live().map(|l| if l { 1.0 } else { 0.0 })).cmp_gt(zero);
     let al = f32x8::new(*area);
-    // Clamped to the film's edges (NaN-free: dead lanes hold 0, live ones are finite,
-    // `PulseLanes::set`).
-    let nbins = bins as f32;
+    // Clamped to the film's edges, `−base ..= bins − base` in the pulses' own bins
+    // (NaN-free: dead lanes hold 0, live ones are finite, `PulseLanes::set`; whole
+    // numbers, exact in f32 within 2^24 bins of the film).
+    let (film_lo, film_hi) = ((-base) as f32, (bins as i64 - base) as f32);
     let first = (t0.floor() + one)
-        .fast_max(zero)
-        .fast_min(f32x8::splat(nbins + 1.0));
+        .fast_max(f32x8::splat(film_lo))
+        .fast_min(f32x8::splat(film_hi + 1.0));
     let last = (t2.ceil() - one)
-        .fast_max(-one)
-        .fast_min(f32x8::splat(nbins));
+        .fast_max(f32x8::splat(film_lo - 1.0))
+        .fast_min(f32x8::splat(film_hi));
     let proper = live
         & (t1 - t0).fast_min(t2 - t1).cmp_gt(f32x8::splat(NARROW))
         & al.cmp_gt(zero)
@@ -183,7 +188,7 @@ mod tests {
                 area[j] = 0.1 + 0.01 * s;
                 pulses.push(p);
             }
-            let got = reverse_lanes(&lanes, &w, &area, &adj, bins);
+            let got = reverse_lanes(&lanes, &w, &area, &adj, 0, bins);
             assert!(got.fallback[4] && !got.fallback[6], "{:?}", got.fallback);
             let fell = got.fallback.iter().filter(|&&f| f).count();
             assert_eq!(fell > 1, spread > 4.0, "{:?}", got.fallback);

@@ -32,7 +32,7 @@
 //! Gaussian kernels, a point laser spot. Does not: interreflections, a finite laser spot
 //! (treated as its centre), partial occlusion within a (sub-)triangle.
 
-use super::tri3_kernel::{self, PulseBlock, TriBlock, W};
+use super::tri3_kernel::{self, BlockFrames, PulseBlock, TriBlock, W};
 use super::MeasurementCtx;
 use crate::film::{splat_lanes, Film, LaneRow, LANES, SPLAT_PAD};
 use crate::geometry::{HiddenTri, SceneGeometry};
@@ -82,6 +82,8 @@ pub struct Tri3Mesh {
     pub parent_centroid: Vec<Vec3>,
     /// The sub-triangles packed for the inner loop.
     pub blocks: Vec<TriBlock>,
+    /// The blocks' origins (`TriBlock::origin`), by axis, for [`BlockFrames::compute`].
+    pub block_origin: [Vec<f64>; 3],
     /// Bounding box of the sub-triangles' vertices (m).
     pub bounds: (Vec3, Vec3),
     /// Longest sub-triangle edge (m).
@@ -159,7 +161,20 @@ impl Tri3Mesh {
             &m.two_sided,
             &m.retro,
         );
+        m.block_origin = [0, 1, 2].map(|axis| m.blocks.iter().map(|b| b.origin[axis]).collect());
         m
+    }
+
+    /// The frames of blocks `range` for the measurement of `frame`.
+    pub fn block_frames(
+        &self,
+        frame: &tri3_kernel::Frame,
+        range: std::ops::Range<usize>,
+        out: &mut BlockFrames,
+    ) {
+        let [x, y, z] = &self.block_origin;
+        let r = range;
+        out.compute(frame, &x[r.clone()], &y[r.clone()], &z[r]);
     }
 
     /// The film bins `(first, len)` that any pulse of this mesh can reach in the
@@ -365,6 +380,8 @@ pub struct Tri3Scratch {
     hist32: Vec<LaneRow>,
     /// Gaussian kernel: the measurement's bins.
     hist64: Vec<f64>,
+    /// The blocks' frames for the measurement.
+    frames: BlockFrames,
 }
 
 /// Adds the three-bounce transient of one measurement to `out` (its `bins` values).
@@ -390,11 +407,13 @@ pub fn render_measurement(
     }
     let confocal = frame.confocal();
     let mut pulses = PulseBlock::default();
+    mesh.block_frames(&frame, 0..mesh.blocks.len(), &mut scratch.frames);
     for (b, block) in mesh.blocks.iter().enumerate() {
+        let here = scratch.frames.get(&frame, b);
         if confocal {
-            block.pulses::<true>(&frame, &mut pulses);
+            block.pulses::<true>(&frame, &here, &mut pulses);
         } else {
-            block.pulses::<false>(&frame, &mut pulses);
+            block.pulses::<false>(&frame, &here, &mut pulses);
         }
         if visibility != Visibility::None {
             for j in 0..W {
@@ -417,7 +436,7 @@ pub fn render_measurement(
                 film.splat_triangle(opl, w, pulses.area[j] as f64, &mut scratch.hist64);
             }
         } else {
-            splat_lanes(&pulses.lanes, bins - base, &mut scratch.hist32[base..]);
+            splat_lanes(&pulses.lanes, base, bins, &mut scratch.hist32);
         }
     }
     let scale = ctx.three_bounce_constant();

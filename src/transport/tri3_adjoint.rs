@@ -26,7 +26,7 @@
 
 use super::mc3::TRI_PARAMS;
 use super::tri3::Tri3Mesh;
-use super::tri3_kernel::{Frame, PulseBlock, TriBlock, W};
+use super::tri3_kernel::{BlockFrames, PulseBlock, TriBlock, W};
 use super::tri3_physics::{KeptLegs, Plane, Wall};
 use super::{MeasurementCtx, Progress};
 use crate::film::{reverse_lanes, Film};
@@ -104,6 +104,7 @@ fn task(
     let bins = film.bins;
     let mut pulses = PulseBlock::default();
     let mut kept = KeptLegs::default();
+    let mut frames = BlockFrames::default();
     for (m, ctx) in ctxs.iter().enumerate() {
         if m % FLUSH == 0 {
             acc.iter_mut().zip(&mut sums).for_each(|(a, s)| a.flush(s));
@@ -122,11 +123,13 @@ fn task(
         // As the render: long films get bins relative to the reach of the mesh.
         let (frame, origin, window) = mesh.frame(ctx, film);
         seen.iter_mut().for_each(|s| *s = 0);
+        mesh.block_frames(&frame, first..first + blocks.len(), &mut frames);
         for (b, block) in blocks.iter().enumerate() {
+            let here = frames.get(&frame, b);
             if frame.confocal() {
-                block.pulses_keeping::<true, true>(&frame, &mut pulses, Some(&mut kept));
+                block.pulses_keeping::<true, true>(&frame, &here, &mut pulses, Some(&mut kept));
             } else {
-                block.pulses_keeping::<false, true>(&frame, &mut pulses, Some(&mut kept));
+                block.pulses_keeping::<false, true>(&frame, &here, &mut pulses, Some(&mut kept));
             }
             let base = (first + b) * W;
             if visibility != Visibility::None {
@@ -149,14 +152,15 @@ fn task(
                     &pulses.lanes,
                     &pulses.w,
                     &pulses.area,
-                    &adj[origin + pulses.base..origin + window],
-                    window - pulses.base,
+                    &adj[origin..origin + window],
+                    pulses.base,
+                    window,
                 );
                 (lg.g, lg.fallback)
             };
             for j in (0..W).filter(|&j| fallback[j]) {
                 let opl = pulses.lanes.t().map(|t| {
-                    let bin = (origin + pulses.base) as f64 + t[j] as f64;
+                    let bin = (origin as i64 + pulses.base) as f64 + t[j] as f64;
                     film.start + bin * film.width
                 });
                 let w = pulses.w.map(|w| w[j] as f64);
@@ -169,10 +173,11 @@ fn task(
                 }
             }
             let order = &pulses.order;
+            let wall = Wall::<f32x8>::new(&frame, &here);
             if frame.confocal() {
-                reverse::<true>(block, &frame, &kept, &sorted, order, scale, &mut sums[b]);
+                reverse::<true>(block, &wall, &kept, &sorted, order, scale, &mut sums[b]);
             } else {
-                reverse::<false>(block, &frame, &kept, &sorted, order, scale, &mut sums[b]);
+                reverse::<false>(block, &wall, &kept, &sorted, order, scale, &mut sums[b]);
             }
         }
     }
@@ -210,7 +215,7 @@ pub struct BlockGrad {
 #[allow(clippy::needless_range_loop)] // corners and axes by index, as the equations
 fn reverse<const CONFOCAL: bool>(
     block: &TriBlock,
-    f: &Frame,
+    wall: &Wall<f32x8>,
     kept: &KeptLegs,
     sorted: &[[f32; W]; 7],
     order: &[[f32; W]; 3],
@@ -218,7 +223,6 @@ fn reverse<const CONFOCAL: bool>(
     acc: &mut BlockSum,
 ) {
     let v = |a: &[f32; W]| f32x8::new(*a);
-    let wall = Wall::<f32x8>::new(f, &f.block(block));
     let (zero, one) = (f32x8::ZERO, f32x8::ONE);
     // Sorted slots to corners.
     let mut g_t = [zero; 3];
@@ -240,7 +244,7 @@ fn reverse<const CONFOCAL: bool>(
     let retro = v(&block.retro).cmp_gt(zero);
     let two_sided = v(&block.two_sided).cmp_gt(zero);
     let n = [0, 1, 2].map(|k| v(&block.n[k]));
-    let plane = Plane::new::<CONFOCAL>(&wall, n, v(&block.plane), two_sided, retro);
+    let plane = Plane::new::<CONFOCAL>(wall, n, v(&block.plane), two_sided, retro);
     let sum = g_t[0] + g_t[1] + g_t[2];
     let mut g_factor = zero;
     let mut g_v = [[zero; 3]; 3];
@@ -411,8 +415,10 @@ mod tests {
                     let mut kept = KeptLegs::default();
                     let mut pulses = PulseBlock::default();
                     let block = &mesh.blocks[b];
-                    block.pulses_keeping::<true, true>(&frame, &mut pulses, Some(&mut kept));
-                    reverse::<true>(block, &frame, &kept, &g, &order, 1.0, &mut sum);
+                    let here = frame.block(block);
+                    block.pulses_keeping::<true, true>(&frame, &here, &mut pulses, Some(&mut kept));
+                    let wall = Wall::new(&frame, &here);
+                    reverse::<true>(block, &wall, &kept, &g, &order, 1.0, &mut sum);
                     acc.flush(&mut sum);
                     let mut got = [0.0; TRI_PARAMS];
                     chain(&mesh, k, &acc, j, &mut got);

@@ -99,63 +99,108 @@ pub struct Wall<N> {
     pub x_l: V3<N>,
     pub x_s: V3<N>,
     pub n_w: V3<N>,
-    /// The wall points from the block's origin, `x − o`, and their lengths.
-    o_l: V3<N>,
-    o_s: V3<N>,
-    r_l: N,
-    r_s: N,
+    /// The laser spot and the sensor point seen from the block's origin.
+    from_l: FromOrigin<N>,
+    from_s: FromOrigin<N>,
     /// The origin's OPL in bins from the block's base.
     tau: N,
     pub inv_width: N,
+}
+
+/// A wall point `x` from the block's origin `o`: `a = x − o`, `2a`, `|a|`, `|a|²` and the
+/// wall cosine term `−n_w·a` (from `f64`).
+#[derive(Clone, Copy)]
+struct FromOrigin<N> {
+    a: V3<N>,
+    a2: V3<N>,
+    r: N,
+    r2: N,
+    c: N,
+}
+
+impl<N: Lane> FromOrigin<N> {
+    /// `a` and its length `r`.
+    #[inline(always)]
+    fn new(a: glam::Vec3, r: f32, n_w: glam::Vec3) -> Self {
+        let v = |x: glam::Vec3| x.to_array().map(N::splat);
+        FromOrigin {
+            a: v(a),
+            a2: v(a + a),
+            r: N::splat(r),
+            r2: N::splat(r * r),
+            c: N::splat(-n_w.dot(a)),
+        }
+    }
+
+    /// `|x − v|² − |x − o|² = q·(q − 2a)` for `v = o + q`: small where `q` is, and exact
+    /// to its own size (no difference of two lengths).
+    #[inline(always)]
+    fn excess(&self, q: V3<N>) -> N {
+        dot(q, sub(q, self.a2))
+    }
+
+    /// The leg from `v = o + q` to `x`: `d = x − v`, `r²`, `r`, `c = −n_w·d`, and
+    /// `|x − v| − |x − o| = e / (|x − v| + |x − o|)` (m) from the excess `e`.
+    #[inline(always)]
+    fn leg(&self, n_w: V3<N>, q: V3<N>) -> (V3<N>, N, N, N, N) {
+        let e = self.excess(q);
+        let r2 = self.r2 + e;
+        let r = r2.sqrt();
+        (
+            sub(self.a, q),
+            r2,
+            r,
+            self.c + dot(n_w, q),
+            e / (r + self.r),
+        )
+    }
 }
 
 impl<N: Lane> Wall<N> {
     #[inline(always)]
     pub fn new(f: &Frame, b: &BlockFrame) -> Self {
         let v = |x: glam::Vec3| x.to_array().map(N::splat);
+        let from_l = FromOrigin::new(b.o_l, b.r_l, f.n_w);
+        let from_s = if f.confocal() {
+            from_l
+        } else {
+            FromOrigin::new(b.o_s, b.r_s, f.n_w)
+        };
         Wall {
             x_l: v(f.x_l),
             x_s: v(f.x_s),
             n_w: v(f.n_w),
-            o_l: v(b.o_l),
-            o_s: v(b.o_s),
-            r_l: N::splat(b.r_l),
-            r_s: N::splat(b.r_s),
+            from_l,
+            from_s,
             tau: N::splat(b.tau),
             inv_width: N::splat(f.inv_width as f32),
         }
     }
 
     /// OPL in bins from the block's base of the point `q` (from the origin) with legs
-    /// `legs`: the origin's, plus each leg's difference to the origin's leg,
-    /// `|x − v| − |x − o| = −q·((x − v) + (x − o)) / (|x − v| + |x − o|)` (no cancellation).
+    /// `legs`: the origin's, plus each leg's difference to the origin's leg (the module
+    /// doc of `tri3_kernel`).
     #[inline(always)]
-    pub fn bins<const CONFOCAL: bool>(&self, legs: &Legs<N>, q: V3<N>) -> N {
-        let diff = |d: V3<N>, o: V3<N>, r: N, r_o: N| {
-            -dot(q, [d[0] + o[0], d[1] + o[1], d[2] + o[2]]) / (r + r_o)
-        };
-        let dl = diff(legs.d_l, self.o_l, legs.r_l, self.r_l);
-        let ds = if CONFOCAL {
-            dl
-        } else {
-            diff(legs.d_s, self.o_s, legs.r_s, self.r_s)
-        };
-        self.tau + (dl + ds) * self.inv_width
+    pub fn bins(&self, legs: &Legs<N>) -> N {
+        self.tau + (legs.dr_l + legs.dr_s) * self.inv_width
     }
 }
 
-/// A point's legs to the wall points: `d = x − v`, `r²`, `r`, and the wall cosine term
-/// `c = −n_w·d`, for the laser spot and the sensor point.
+/// A point's legs to the wall points: `d = x − v`, `r²`, `r`, the wall cosine term
+/// `c = −n_w·d`, and `dr = r − |x − o|` (the leg's length less the block origin's), for
+/// the laser spot and the sensor point.
 #[derive(Clone, Copy)]
 pub struct Legs<N> {
     pub d_l: V3<N>,
     pub r2_l: N,
     pub r_l: N,
     pub c_l: N,
+    pub dr_l: N,
     pub d_s: V3<N>,
     pub r2_s: N,
     pub r_s: N,
     pub c_s: N,
+    pub dr_s: N,
 }
 
 impl<N: Lane> Legs<N> {
@@ -163,32 +208,23 @@ impl<N: Lane> Legs<N> {
     /// skips the second distance.
     #[inline(always)]
     pub fn new<const CONFOCAL: bool>(w: &Wall<N>, q: V3<N>) -> Legs<N> {
-        let d_l = sub(w.o_l, q);
-        let r2_l = dot(d_l, d_l);
-        let (r_l, c_l) = (r2_l.sqrt(), -dot(w.n_w, d_l));
-        if CONFOCAL {
-            return Legs {
-                d_l,
-                r2_l,
-                r_l,
-                c_l,
-                d_s: d_l,
-                r2_s: r2_l,
-                r_s: r_l,
-                c_s: c_l,
-            };
-        }
-        let d_s = sub(w.o_s, q);
-        let r2_s = dot(d_s, d_s);
+        let (d_l, r2_l, r_l, c_l, dr_l) = w.from_l.leg(w.n_w, q);
+        let (d_s, r2_s, r_s, c_s, dr_s) = if CONFOCAL {
+            (d_l, r2_l, r_l, c_l, dr_l)
+        } else {
+            w.from_s.leg(w.n_w, q)
+        };
         Legs {
             d_l,
             r2_l,
             r_l,
             c_l,
+            dr_l,
             d_s,
             r2_s,
-            r_s: r2_s.sqrt(),
-            c_s: -dot(w.n_w, d_s),
+            r_s,
+            c_s,
+            dr_s,
         }
     }
 
@@ -285,6 +321,7 @@ impl LegLanes {
 
     /// All eight lanes.
     #[inline(always)]
+    /// (`dr`, the time's part, is not kept: the reverse differentiates `r` itself.)
     pub fn lanes(&self) -> Legs<f32x8> {
         let v = |a: &[f32; 8]| f32x8::new(*a);
         Legs {
@@ -292,10 +329,12 @@ impl LegLanes {
             r2_l: v(&self.r2_l),
             r_l: v(&self.r_l),
             c_l: v(&self.c_l),
+            dr_l: f32x8::ZERO,
             d_s: self.d_s.each_ref().map(v),
             r2_s: v(&self.r2_s),
             r_s: v(&self.r_s),
             c_s: v(&self.c_s),
+            dr_s: f32x8::ZERO,
         }
     }
 }

@@ -232,8 +232,8 @@ impl TriBlock {
             for i in 0..3 {
                 let q = self.corner(i, j);
                 let legs = Legs::new::<CONFOCAL>(&wall, q);
-                tau[i] = wall.bins(&legs);
-                let k = legs.weight(retro);
+                tau[i] = wall.bins::<CONFOCAL>(&legs);
+                let k = legs.weight::<CONFOCAL>(retro);
                 vw[i] = self.brdf[i][j] * k;
                 if let (true, Some(kept)) = (KEEP, keep.as_deref_mut()) {
                     kept.legs[i].put(j, &legs);
@@ -250,7 +250,7 @@ impl TriBlock {
             if let (true, Some(kept)) = (KEEP, keep.as_deref_mut()) {
                 kept.legs[3].put(j, &c);
             }
-            let tau_c = wall.bins(&c);
+            let tau_c = wall.bins::<CONFOCAL>(&c);
             let shift = 0.75 * (tau_c - (tau[0] + tau[1] + tau[2]) * (1.0 / 3.0));
             let (p, order) = BoxPulse::new_ordered(tau.map(|t| t + shift), w, self.area[j]);
             let live = (w[0] + w[1] + w[2] > 0.0) & (p.t[2] >= block.lo) & (p.t[0] < block.hi);

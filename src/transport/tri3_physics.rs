@@ -139,20 +139,14 @@ impl<N: Lane> FromOrigin<N> {
         dot(q, sub(q, self.a2))
     }
 
-    /// The leg from `v = o + q` to `x`: `d = x − v`, `r²`, `r`, `c = −n_w·d`, and
-    /// `|x − v| − |x − o| = e / (|x − v| + |x − o|)` (m) from the excess `e`.
+    /// The leg from `v = o + q` to `x`: `d = x − v`, `r²`, `r`, `c = −n_w·d`, and the
+    /// excess `e` with `|x − v| + |x − o|`, whose ratio is `|x − v| − |x − o|` (m).
     #[inline(always)]
-    fn leg(&self, n_w: V3<N>, q: V3<N>) -> (V3<N>, N, N, N, N) {
+    fn leg(&self, n_w: V3<N>, q: V3<N>) -> (V3<N>, N, N, N, [N; 2]) {
         let e = self.excess(q);
         let r2 = self.r2 + e;
         let r = r2.sqrt();
-        (
-            sub(self.a, q),
-            r2,
-            r,
-            self.c + dot(n_w, q),
-            e / (r + self.r),
-        )
+        (sub(self.a, q), r2, r, self.c + dot(n_w, q), [e, r + self.r])
     }
 }
 
@@ -181,26 +175,33 @@ impl<N: Lane> Wall<N> {
     /// `legs`: the origin's, plus each leg's difference to the origin's leg (the module
     /// doc of `tri3_kernel`).
     #[inline(always)]
-    pub fn bins(&self, legs: &Legs<N>) -> N {
-        self.tau + (legs.dr_l + legs.dr_s) * self.inv_width
+    pub fn bins<const CONFOCAL: bool>(&self, legs: &Legs<N>) -> N {
+        let ([e_l, s_l], [e_s, s_s]) = (legs.dr_l, legs.dr_s);
+        // e_l/s_l + e_s/s_s with one division (s ~ 2 r: no overflow).
+        let dr = if CONFOCAL {
+            (e_l + e_l) / s_l
+        } else {
+            e_l.mul_add(s_s, e_s * s_l) / (s_l * s_s)
+        };
+        self.tau + dr * self.inv_width
     }
 }
 
 /// A point's legs to the wall points: `d = x − v`, `r²`, `r`, the wall cosine term
-/// `c = −n_w·d`, and `dr = r − |x − o|` (the leg's length less the block origin's), for
-/// the laser spot and the sensor point.
+/// `c = −n_w·d`, and `dr = [e, s]`, the leg's length less the block origin's as the ratio
+/// `e / s` (`FromOrigin::leg`), for the laser spot and the sensor point.
 #[derive(Clone, Copy)]
 pub struct Legs<N> {
     pub d_l: V3<N>,
     pub r2_l: N,
     pub r_l: N,
     pub c_l: N,
-    pub dr_l: N,
+    pub dr_l: [N; 2],
     pub d_s: V3<N>,
     pub r2_s: N,
     pub r_s: N,
     pub c_s: N,
-    pub dr_s: N,
+    pub dr_s: [N; 2],
 }
 
 impl<N: Lane> Legs<N> {
@@ -238,10 +239,16 @@ impl<N: Lane> Legs<N> {
     /// The corner weight without `ρ/π` and the plane factor:
     /// `c_l c_s / (r_l² r_s²)²`, or `c_l / r_l⁴` for a retroreflective triangle (the return
     /// leg's `c_s / r_s⁴` is 1, and its `p_s` in [`Plane`]); 0 behind the wall.
+    /// (Confocal, the two legs' factors are one `c / r⁴`: one division, not two.)
     #[inline(always)]
-    pub fn weight(&self, retro: N::Mask) -> N {
-        let back_leg = N::select(retro, N::splat(1.0), self.c_s / (self.r2_s * self.r2_s));
-        let w = self.c_l * back_leg / (self.r2_l * self.r2_l);
+    pub fn weight<const CONFOCAL: bool>(&self, retro: N::Mask) -> N {
+        let w = if CONFOCAL {
+            let leg = self.c_l / (self.r2_l * self.r2_l);
+            N::select(retro, leg, leg * leg)
+        } else {
+            let back_leg = N::select(retro, N::splat(1.0), self.c_s / (self.r2_s * self.r2_s));
+            self.c_l * back_leg / (self.r2_l * self.r2_l)
+        };
         N::select(self.front(), w, N::splat(0.0))
     }
 }
@@ -329,12 +336,12 @@ impl LegLanes {
             r2_l: v(&self.r2_l),
             r_l: v(&self.r_l),
             c_l: v(&self.c_l),
-            dr_l: f32x8::ZERO,
+            dr_l: [f32x8::ZERO; 2],
             d_s: self.d_s.each_ref().map(v),
             r2_s: v(&self.r2_s),
             r_s: v(&self.r_s),
             c_s: v(&self.c_s),
-            dr_s: f32x8::ZERO,
+            dr_s: [f32x8::ZERO; 2],
         }
     }
 }

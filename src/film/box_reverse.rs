@@ -14,7 +14,7 @@
 
 use super::box_pulse::{PulseLanes, LANES, NARROW};
 use super::pulse_reverse::{pulse_grad, Moments};
-use wide::{f32x8, CmpGt, CmpLe, CmpLt};
+use wide::{f32x8, i32x8, CmpGt, CmpLe, CmpLt};
 
 /// Per lane: `∂/∂(t0, t1, t2, w0, w1, w2, A)` of `Σ_b δH_b H_b` in the sorted slots
 /// (`t` in bins), and the lanes left to the caller (`fallback`). Dead lanes hold 0.
@@ -44,9 +44,8 @@ pub fn reverse_lanes(
     bins: usize,
 ) -> LaneGrad {
     let t = p.t();
-    // Edge and bin numbers below are the pulses' own (from `base`).
-    let at = |k: i32| {
-        let row = i64::from(k) + base;
+    // Rows of the histogram (edge `k` of the pulses' own bins is row `k + base`).
+    let at = |row: i32| {
         if row >= 0 && (row as usize) < bins {
             adj[row as usize]
         } else {
@@ -56,6 +55,11 @@ pub fn reverse_lanes(
     let mut out = LaneGrad {
         g: [[0.0; LANES]; 7],
         fallback: [false; LANES],
+    };
+    // A block whose base is this far off has no pulse on the film (none is live).
+    let Ok(base) = i32::try_from(base) else {
+        out.fallback = *p.live();
+        return out;
     };
     // Per lane: the pulse's inner edges `lo ..= hi`, and T. Lanes that the f32 splat
     // treats otherwise (a piece folded into the point mass) or that span too many edges
@@ -67,7 +71,7 @@ pub fn reverse_lanes(
     // Clamped to the film's edges, `−base ..= bins − base` in the pulses' own bins
     // (NaN-free: dead lanes hold 0, live ones are finite, `PulseLanes::set`; whole
     // numbers, exact in f32 within 2^24 bins of the film).
-    let (film_lo, film_hi) = ((-base) as f32, (bins as i64 - base) as f32);
+    let (film_lo, film_hi) = ((-i64::from(base)) as f32, (bins as i64 - i64::from(base)) as f32);
     let first = (t0.floor() + one)
         .fast_max(f32x8::splat(film_lo))
         .fast_min(f32x8::splat(film_hi + 1.0));
@@ -85,7 +89,12 @@ pub fn reverse_lanes(
     if proper_at == 0 {
         return out;
     }
-    let (first, last) = (first.round_int().to_array(), last.round_int().to_array());
+    // As rows (within `-1 ..= bins + 1`).
+    let shift = i32x8::splat(base);
+    let (first, last) = (
+        (first.round_int() + shift).to_array(),
+        (last.round_int() + shift).to_array(),
+    );
     // Lanes that are not proper walk no edge and read nothing.
     let lo: [i32; LANES] =
         std::array::from_fn(|j| if proper_at >> j & 1 == 1 { first[j] } else { 0 });
@@ -120,7 +129,9 @@ pub fn reverse_lanes(
             }
         });
         prev = next;
-        let (a, x) = (lanes(alpha), lanes(k.map(|k| k as f32)));
+        // The edge in the pulses' own bins.
+        let x = (i32x8::new(k) - shift).round_float();
+        let a = lanes(alpha);
         let lower = x.cmp_le(t1);
         add_powers(&mut m.lower, a & lower, x - t0);
         add_powers(&mut m.upper, a & !lower, t2 - x);

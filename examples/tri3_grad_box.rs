@@ -4,7 +4,10 @@
 use umbra::scene::{KernelSpec, Model};
 
 fn main() -> umbra::Result<()> {
-    let reps = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(5);
+    let reps = std::env::args()
+        .nth(1)
+        .and_then(|a| a.parse().ok())
+        .unwrap_or(5);
     let mut scene = umbra::bench::tri3_speed_scene()?;
     scene.film.kernel = KernelSpec::Box;
     let t = umbra::bench::grad_timing(&scene, Model::Tri3, 1, reps)?;

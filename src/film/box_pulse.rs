@@ -460,7 +460,10 @@ mod tests {
                     .collect();
                 let mut h = vec![[0.0; LANES]; bins + SPLAT_PAD];
                 splat_lanes(&lanes(&moved, &live), base, bins, &mut h);
-                h[..bins].iter().map(|r| r.iter().sum()).collect::<Vec<f32>>()
+                h[..bins]
+                    .iter()
+                    .map(|r| r.iter().sum())
+                    .collect::<Vec<f32>>()
             };
             let want = at(0);
             assert!(want.iter().any(|&v| v > 0.0));

@@ -71,7 +71,10 @@ pub fn reverse_lanes(
     // Clamped to the film's edges, `−base ..= bins − base` in the pulses' own bins
     // (NaN-free: dead lanes hold 0, live ones are finite, `PulseLanes::set`; whole
     // numbers, exact in f32 within 2^24 bins of the film).
-    let (film_lo, film_hi) = ((-i64::from(base)) as f32, (bins as i64 - i64::from(base)) as f32);
+    let (film_lo, film_hi) = (
+        (-i64::from(base)) as f32,
+        (bins as i64 - i64::from(base)) as f32,
+    );
     let first = (t0.floor() + one)
         .fast_max(f32x8::splat(film_lo))
         .fast_min(f32x8::splat(film_hi + 1.0));

@@ -18,8 +18,8 @@ fn main() {
     for m in (0..scene.num_measurements()).step_by(37) {
         let ctx = MeasurementCtx::new(&scene, &geom, &film, m);
         let frame = tri3_kernel::frame(&ctx, &film);
-        for block in &mesh.blocks {
-            block.pulses::<true>(&frame, &frame.block(block), &mut pulses);
+        for (b, block) in mesh.blocks.iter().enumerate() {
+            block.pulses::<true>(&frame, &mesh.block_frame(&frame, b), &mut pulses);
             let [t0, _, t2] = pulses.lanes.t();
             let first = (0..LANES)
                 .map(|j| t0[j].floor())

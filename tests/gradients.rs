@@ -176,11 +176,11 @@ fn tri3_kernel_matches_its_f64_reference() {
 /// with the box kernel. Adjoint: L2 against the objects moved 2 cm away from the wall.
 ///
 /// Relative L2 over all corners and albedos at most 1e-4 with either kernel (issue 19).
-/// Measured 2e-7 to 4e-7 (Gaussian), 3e-7 to 2.2e-6 (box). The box kernel's vertex
+/// Measured 1.4e-7 to 4.4e-7 (Gaussian), 8.6e-8 to 2.3e-6 (box). The box kernel's vertex
 /// gradient is ill-conditioned where pulses much narrower than a bin straddle a bin edge
 /// (the letter parallel to the wall, confocal: sub-triangle pulses of ~1e-3 bins): it
 /// needs pulse times accurate to ~1e-7 bins, which the kernel has since it measures them
-/// from its blocks' origins and the earliest pulse's bin (it summed OPLs of ~150 bins in
+/// from its blocks' origins, each from the bin of its own OPL (it summed OPLs of ~150 bins in
 /// `f32`, rounding them by ~1e-5 bins: 2.4e-5 to 7.2e-4 here then).
 #[test]
 fn tri3_lane_adjoint_matches_its_f64_oracle() {

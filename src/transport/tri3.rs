@@ -32,12 +32,13 @@
 //! Gaussian kernels, a point laser spot. Does not: interreflections, a finite laser spot
 //! (treated as its centre), partial occlusion within a (sub-)triangle.
 
+use super::mc3::TriParams;
 use super::tri3_kernel::{self, BlockFrames, PulseBlock, TriBlock, W};
 use super::MeasurementCtx;
 use crate::film::{splat_lanes, Film, LaneRow, LANES, SPLAT_PAD};
 use crate::geometry::{HiddenTri, SceneGeometry};
 use crate::scene::{KernelSpec, Scene, Visibility};
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use std::collections::HashMap;
 use std::f32::consts::FRAC_1_PI;
 
@@ -82,7 +83,7 @@ pub struct Tri3Mesh {
     pub parent_centroid: Vec<Vec3>,
     /// The sub-triangles packed for the inner loop.
     pub blocks: Vec<TriBlock>,
-    /// The blocks' origins (`TriBlock::origin`), by axis, for [`BlockFrames::compute`].
+    /// The blocks' origins (the mean of each block's corners, m), by axis.
     pub block_origin: [Vec<f64>; 3],
     /// Bounding box of the sub-triangles' vertices (m).
     pub bounds: (Vec3, Vec3),
@@ -146,14 +147,11 @@ impl Tri3Mesh {
             .zip(&m.corner_bary)
             .zip(&m.parent)
             .map(|((tri, bary), &p)| {
-                let v = geom.hidden[p as usize].v.map(|v| v.as_dvec3());
-                let at = |[b1, b2]: [f32; 2]| {
-                    let b0 = 1.0 - b1 - b2;
-                    v[0] * f64::from(b0) + v[1] * f64::from(b1) + v[2] * f64::from(b2)
-                };
+                let parent = TriParams::constant64(&geom.hidden[p as usize]);
+                let at = |b: [f32; 2]| DVec3::from_array(parent.point(b));
                 (bary.map(at), tri.map(|i| m.vertex_brdf[i as usize]))
             });
-        m.blocks = tri3_kernel::pack(
+        (m.blocks, m.block_origin) = tri3_kernel::pack(
             corners,
             &m.normal,
             &m.plane,
@@ -161,7 +159,6 @@ impl Tri3Mesh {
             &m.two_sided,
             &m.retro,
         );
-        m.block_origin = [0, 1, 2].map(|axis| m.blocks.iter().map(|b| b.origin[axis]).collect());
         m
     }
 
@@ -175,6 +172,14 @@ impl Tri3Mesh {
         let [x, y, z] = &self.block_origin;
         let r = range;
         out.compute(frame, &x[r.clone()], &y[r.clone()], &z[r]);
+    }
+
+    /// The frame of block `b` alone (tests and tools; the render and the adjoint take runs
+    /// of blocks through [`Tri3Mesh::block_frames`]).
+    pub fn block_frame(&self, frame: &tri3_kernel::Frame, b: usize) -> tri3_kernel::BlockFrame {
+        let mut one = BlockFrames::default();
+        self.block_frames(frame, b..b + 1, &mut one);
+        one.get(frame, 0)
     }
 
     /// The film bins `(first, len)` that any pulse of this mesh can reach in the

@@ -417,7 +417,7 @@ mod tests {
                     let mut kept = KeptLegs::default();
                     let mut pulses = PulseBlock::default();
                     let block = &mesh.blocks[b];
-                    let here = frame.block(block);
+                    let here = mesh.block_frame(&frame, b);
                     block.pulses_keeping::<true, true>(&frame, &here, &mut pulses, Some(&mut kept));
                     let wall = Wall::new(&frame, &here);
                     reverse::<true>(block, &wall, &kept, &g, &order, 1.0, &mut sum);

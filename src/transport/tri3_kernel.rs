@@ -9,8 +9,9 @@
 //! - corner OPL, in bins: `τ_i = (|x_l − v_i| + |v_i − x_s| + legs − start) / width`,
 //!   computed as `τ_o + (δ_l + δ_s) / width` from the block's origin `o`
 //!   ([`BlockFrame`]): `τ_o` (in `f64`, from a whole bin `base`) and the leg differences
-//!   `δ = |x − v| − |x − o| = −q·((x − v) + (x − o)) / (|x − v| + |x − o|)`, `q = v − o`,
-//!   accurate in `f32` to their own size. (Summed in `f32` from lengths of ~1 m, the
+//!   `δ = |x − v| − |x − o| = e / (|x − v| + |x − o|)` with the squared-distance excess
+//!   `e = |x − v|² − |x − o|² = q·(q − 2a)`, `q = v − o`, `a = x − o`: accurate in `f32`
+//!   to their own size. (Summed in `f32` from lengths of ~1 m, the
 //!   times of a film's bins ~150 carry ~1e-5 bins of rounding: on sub-triangles whose
 //!   pulses are 1e-3 bins wide, a percent of their width, and of the box kernel's
 //!   gradient where they straddle a bin edge.)
@@ -42,9 +43,7 @@ type Lanes = [f32; W];
 /// area and albedo, so they compute finite numbers and are never live.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct TriBlock {
-    /// The block's origin `o`: the mean of its corners (m).
-    pub origin: [f64; 3],
-    /// Corner positions from the origin, `v − o`, `p[corner][axis][lane]` (m).
+    /// Corner positions from the block's origin, `v − o`, `p[corner][axis][lane]` (m).
     pub p: [[Lanes; 3]; 3],
     /// Unit normal.
     pub n: [Lanes; 3],
@@ -80,15 +79,6 @@ pub struct Frame {
 impl Frame {
     pub fn confocal(&self) -> bool {
         self.x_l == self.x_s
-    }
-
-    /// The block `b` for this measurement, its times from the bin of its origin's OPL
-    /// (one block; [`BlockFrames`] for a run of them).
-    pub fn block(&self, b: &TriBlock) -> BlockFrame {
-        let mut one = BlockFrames::default();
-        let o = b.origin;
-        one.compute(self, &[o[0]], &[o[1]], &[o[2]]);
-        one.get(self, 0)
     }
 }
 
@@ -293,6 +283,8 @@ pub fn block_order(centroid: &[Vec3]) -> Vec<usize> {
 
 /// Packs sub-triangles into blocks of [`W`]: `corners` in `f64` (the sub-triangle's
 /// corners from its original triangle's, the lanes store them from the block's origin).
+/// Returns the blocks and their origins `o` (the mean of each block's corners, m), by
+/// axis: what [`BlockFrames::compute`] reads.
 #[allow(clippy::too_many_arguments)]
 pub fn pack(
     corners: impl ExactSizeIterator<Item = ([DVec3; 3], [f32; 3])>,
@@ -301,19 +293,19 @@ pub fn pack(
     area: &[f32],
     two_sided: &[bool],
     retro: &[bool],
-) -> Vec<TriBlock> {
+) -> (Vec<TriBlock>, [Vec<f64>; 3]) {
     let count = corners.len();
     let corners: Vec<_> = corners.collect();
     let mut blocks = vec![TriBlock::default(); count.div_ceil(W)];
-    for (b, block) in blocks.iter_mut().enumerate() {
-        let own = &corners[b * W..((b + 1) * W).min(count)];
-        let sum = own.iter().flat_map(|(v, _)| v).sum::<DVec3>();
-        block.origin = (sum / (3 * own.len()) as f64).to_array();
-    }
+    let origin: Vec<DVec3> = corners
+        .chunks(W)
+        .map(|own| own.iter().flat_map(|(v, _)| v).sum::<DVec3>() / (3 * own.len()) as f64)
+        .collect();
     let mut last = None;
     for (k, &(v, brdf)) in corners.iter().enumerate() {
         put(
             &mut blocks[k / W],
+            origin[k / W],
             k % W,
             v,
             brdf,
@@ -329,6 +321,7 @@ pub fn pack(
         for k in count..blocks.len() * W {
             put(
                 &mut blocks[k / W],
+                origin[k / W],
                 k % W,
                 v,
                 [0.0; 3],
@@ -340,12 +333,14 @@ pub fn pack(
             );
         }
     }
-    blocks
+    let by_axis = [0, 1, 2].map(|axis| origin.iter().map(|o| o[axis]).collect());
+    (blocks, by_axis)
 }
 
 #[allow(clippy::too_many_arguments)]
 fn put(
     b: &mut TriBlock,
+    o: DVec3,
     j: usize,
     v: [DVec3; 3],
     brdf: [f32; 3],
@@ -355,7 +350,6 @@ fn put(
     two_sided: bool,
     retro: bool,
 ) {
-    let o = DVec3::from_array(b.origin);
     for i in 0..3 {
         for (axis, x) in (v[i] - o).to_array().into_iter().enumerate() {
             b.p[i][axis][j] = x as f32;

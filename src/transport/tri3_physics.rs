@@ -107,8 +107,8 @@ pub struct Wall<N> {
     pub inv_width: N,
 }
 
-/// A wall point `x` from the block's origin `o`: `a = x − o`, `2a`, `|a|`, `|a|²` and the
-/// wall cosine term `−n_w·a` (from `f64`).
+/// A wall point `x` from the block's origin `o`: `a = x − o` and `|a|` (rounded from
+/// `f64`, [`BlockFrame`]), `2a`, `|a|²` and the wall cosine term `−n_w·a`.
 #[derive(Clone, Copy)]
 struct FromOrigin<N> {
     a: V3<N>,
@@ -326,9 +326,9 @@ impl LegLanes {
         (self.r2_s[j], self.r_s[j], self.c_s[j]) = (l.r2_s, l.r_s, l.c_s);
     }
 
-    /// All eight lanes.
+    /// All eight lanes. (`dr`, the time's part, is not kept: the reverse differentiates
+    /// `r` itself.)
     #[inline(always)]
-    /// (`dr`, the time's part, is not kept: the reverse differentiates `r` itself.)
     pub fn lanes(&self) -> Legs<f32x8> {
         let v = |a: &[f32; 8]| f32x8::new(*a);
         Legs {

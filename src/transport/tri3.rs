@@ -35,12 +35,13 @@
 use super::mc3::TriParams;
 use super::tri3_kernel::{self, BlockFrames, PulseBlock, TriBlock, W};
 use super::MeasurementCtx;
-use crate::film::{splat_lanes, Film, LaneRow, LANES, SPLAT_PAD};
+use crate::film::{splat_lanes, Film, LaneRow, PulseLanes, LANES, SPLAT_PAD};
 use crate::geometry::{HiddenTri, SceneGeometry};
 use crate::scene::{KernelSpec, Scene, Visibility};
 use glam::{DVec3, Vec3};
 use std::collections::HashMap;
 use std::f32::consts::FRAC_1_PI;
+use std::sync::atomic::{AtomicU8, Ordering};
 
 /// Subdivision is capped at this level (`4^8` sub-triangles per triangle).
 pub const MAX_LEVEL: u32 = 8;
@@ -255,52 +256,89 @@ impl Tri3Mesh {
 
     /// `centroid` visibility: for every original triangle, whether its centroid sees both
     /// wall points of the measurement (left empty for the other modes).
-    pub fn parent_visibility(&self, v: Visibility, out: &mut Vec<u8>) {
+    pub fn parent_visibility(&self, v: Visibility, out: &mut Vec<AtomicU8>) {
         out.clear();
         if v == Visibility::Centroid {
             // Filled on first use by `visible`: parents whose sub-triangles all face
             // away from the wall point (dead before visibility) cast no ray.
-            out.resize(self.parent_centroid.len(), UNKNOWN);
+            out.resize_with(self.parent_centroid.len(), || AtomicU8::new(UNKNOWN));
+        }
+    }
+
+    /// Kills the live lanes of block `b`'s pulses whose sub-triangle does not count for
+    /// the measurement under visibility mode `v` (not `None`); `cache(k)`: the cache entry
+    /// of sub-triangle `k`'s parent ([`Tri3Mesh::visible_at`]). Out of line, so that the
+    /// block loops of the render and the adjoint keep their registers for the kernel
+    /// (inlined, it made the render 5-8 % slower, even with visibility off; measured).
+    #[inline(never)]
+    pub fn cull<'c>(
+        &self,
+        b: usize,
+        ctx: &MeasurementCtx,
+        v: Visibility,
+        lanes: &mut PulseLanes,
+        cache: impl Fn(usize) -> Option<&'c AtomicU8>,
+    ) {
+        for j in 0..W {
+            let k = b * W + j;
+            if lanes.live()[j] && !self.visible_at(k, ctx, v, cache(k)) {
+                lanes.kill(j);
+            }
         }
     }
 
     /// Whether sub-triangle `k` counts for the measurement, under visibility mode `v`
     /// (`parents` from [`Tri3Mesh::parent_visibility`], completed as it goes).
+    #[inline(always)]
     pub fn visible(
         &self,
         k: usize,
         ctx: &MeasurementCtx,
         v: Visibility,
-        parents: &mut [u8],
+        parents: &[AtomicU8],
     ) -> bool {
-        self.visible_at(k, ctx, v, parents, self.parent[k] as usize)
+        let cached = parents.get(self.parent[k] as usize);
+        self.visible_at(k, ctx, v, cached)
     }
 
-    /// [`Tri3Mesh::visible`] with the parent's entry of `parents` at `slot` (a cache over a
-    /// subset of the parents, filled with `UNKNOWN` = 0 per measurement).
+    /// [`Tri3Mesh::visible`] given its parent's entry of a cache (`UNKNOWN` = 0 until
+    /// first use; needed for `centroid` visibility only). The cache may be shared between
+    /// threads: a ray's answer does not depend on who traces it, so a race costs at most
+    /// a second ray, never a different result.
+    #[inline(always)]
     pub fn visible_at(
         &self,
         k: usize,
         ctx: &MeasurementCtx,
         v: Visibility,
-        parents: &mut [u8],
-        slot: usize,
+        cached: Option<&AtomicU8>,
     ) -> bool {
         match v {
             Visibility::None => true,
             Visibility::Centroid => {
-                let (p, cached) = (self.parent[k] as usize, &mut parents[slot]);
-                if *cached == UNKNOWN {
-                    *cached = if seen(ctx, self.parent_centroid[p]) {
-                        SEEN
-                    } else {
-                        HIDDEN
-                    };
+                // The cached answer inline (asked for every live lane); the ray not.
+                let state = cached.map_or(UNKNOWN, |c| c.load(Ordering::Relaxed));
+                if state != UNKNOWN {
+                    state == SEEN
+                } else {
+                    self.trace_parent(k, ctx, cached)
                 }
-                *cached == SEEN
             }
             Visibility::Subtriangle => seen(ctx, self.centroid[k]),
         }
+    }
+
+    /// Traces `centroid` visibility for sub-triangle `k`'s original triangle, and caches
+    /// it in `cached`.
+    #[inline(never)]
+    #[cold]
+    fn trace_parent(&self, k: usize, ctx: &MeasurementCtx, cached: Option<&AtomicU8>) -> bool {
+        let p = self.parent[k] as usize;
+        let visible = seen(ctx, self.parent_centroid[p]);
+        if let Some(c) = cached {
+            c.store(if visible { SEEN } else { HIDDEN }, Ordering::Relaxed);
+        }
+        visible
     }
 
     pub fn is_empty(&self) -> bool {
@@ -366,7 +404,7 @@ impl Tri3Mesh {
 }
 
 /// Centroid visibility of a parent triangle, per measurement.
-const UNKNOWN: u8 = 0;
+pub const UNKNOWN: u8 = 0;
 const SEEN: u8 = 1;
 const HIDDEN: u8 = 2;
 
@@ -379,7 +417,7 @@ fn seen(ctx: &MeasurementCtx, c: glam::Vec3) -> bool {
 #[derive(Default)]
 pub struct Tri3Scratch {
     /// Per original triangle: centroid visibility (UNKNOWN, SEEN, HIDDEN).
-    visible: Vec<u8>,
+    visible: Vec<AtomicU8>,
     /// Box kernel: the measurement's bins, one row of eight lanes each, and
     /// [`SPLAT_PAD`] rows of scratch.
     hist32: Vec<LaneRow>,
@@ -421,13 +459,10 @@ pub fn render_measurement(
             block.pulses::<false>(&frame, &here, &mut pulses);
         }
         if visibility != Visibility::None {
-            for j in 0..W {
-                if pulses.lanes.live()[j]
-                    && !mesh.visible(b * W + j, ctx, visibility, &mut scratch.visible)
-                {
-                    pulses.lanes.kill(j);
-                }
-            }
+            let cache = &scratch.visible;
+            mesh.cull(b, ctx, visibility, &mut pulses.lanes, |k| {
+                cache.get(mesh.parent[k] as usize)
+            });
         }
         // Pulse times count from the block's base bin.
         let base = pulses.base;

@@ -153,7 +153,7 @@ pub fn render_measurement(
     mesh.parent_visibility(visibility, &mut parents);
     let scale = ctx.three_bounce_constant() as f64;
     for k in 0..mesh.len() {
-        if mesh.visible(k, ctx, visibility, &mut parents) {
+        if mesh.visible(k, ctx, visibility, &parents) {
             let parent = Parent::new(TriParams::constant64(
                 &ctx.geom.hidden[mesh.parent[k] as usize],
             ));
@@ -184,7 +184,7 @@ pub fn adjoint_measurement(
     mesh.parent_visibility(visibility, &mut seen);
     let scale = ctx.three_bounce_constant() as f64;
     for k in 0..mesh.len() {
-        if !mesh.visible(k, ctx, visibility, &mut seen) {
+        if !mesh.visible(k, ctx, visibility, &seen) {
             continue;
         }
         let p = mesh.parent[k] as usize;

@@ -226,7 +226,7 @@ impl TriBlock {
                 let k = legs.weight::<CONFOCAL>(retro);
                 vw[i] = self.brdf[i][j] * k;
                 if let (true, Some(kept)) = (KEEP, keep.as_deref_mut()) {
-                    kept.legs[i].put(j, &legs);
+                    kept.legs[i].put::<CONFOCAL>(j, &legs);
                     kept.weight[i][j] = k;
                 }
             }
@@ -238,7 +238,7 @@ impl TriBlock {
             let q = centroid([0, 1, 2].map(|i| self.corner(i, j)));
             let c = Legs::new::<CONFOCAL>(&wall, q);
             if let (true, Some(kept)) = (KEEP, keep.as_deref_mut()) {
-                kept.legs[3].put(j, &c);
+                kept.legs[3].put::<CONFOCAL>(j, &c);
             }
             let tau_c = wall.bins::<CONFOCAL>(&c);
             let shift = 0.75 * (tau_c - (tau[0] + tau[1] + tau[2]) * (1.0 / 3.0));

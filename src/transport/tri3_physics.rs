@@ -315,32 +315,53 @@ pub struct LegLanes {
 }
 
 impl LegLanes {
-    /// Stores lane `j`.
+    /// Stores lane `j` (confocal, `CONFOCAL`: the laser leg only, the sensor's is the
+    /// same).
     #[inline(always)]
-    pub fn put(&mut self, j: usize, l: &Legs<f32>) {
+    pub fn put<const CONFOCAL: bool>(&mut self, j: usize, l: &Legs<f32>) {
         for k in 0..3 {
             self.d_l[k][j] = l.d_l[k];
-            self.d_s[k][j] = l.d_s[k];
         }
         (self.r2_l[j], self.r_l[j], self.c_l[j]) = (l.r2_l, l.r_l, l.c_l);
-        (self.r2_s[j], self.r_s[j], self.c_s[j]) = (l.r2_s, l.r_s, l.c_s);
+        if !CONFOCAL {
+            for k in 0..3 {
+                self.d_s[k][j] = l.d_s[k];
+            }
+            (self.r2_s[j], self.r_s[j], self.c_s[j]) = (l.r2_s, l.r_s, l.c_s);
+        }
     }
 
-    /// All eight lanes. (`dr`, the time's part, is not kept: the reverse differentiates
-    /// `r` itself.)
+    /// All eight lanes, as [`LegLanes::put`] stored them. (`dr`, the time's part, is not
+    /// kept: the reverse differentiates `r` itself.)
     #[inline(always)]
-    pub fn lanes(&self) -> Legs<f32x8> {
+    pub fn lanes<const CONFOCAL: bool>(&self) -> Legs<f32x8> {
         let v = |a: &[f32; 8]| f32x8::new(*a);
+        let (d_l, r2_l, r_l, c_l) = (
+            self.d_l.each_ref().map(v),
+            v(&self.r2_l),
+            v(&self.r_l),
+            v(&self.c_l),
+        );
+        let (d_s, r2_s, r_s, c_s) = if CONFOCAL {
+            (d_l, r2_l, r_l, c_l)
+        } else {
+            (
+                self.d_s.each_ref().map(v),
+                v(&self.r2_s),
+                v(&self.r_s),
+                v(&self.c_s),
+            )
+        };
         Legs {
-            d_l: self.d_l.each_ref().map(v),
-            r2_l: v(&self.r2_l),
-            r_l: v(&self.r_l),
-            c_l: v(&self.c_l),
+            d_l,
+            r2_l,
+            r_l,
+            c_l,
             dr_l: [f32x8::ZERO; 2],
-            d_s: self.d_s.each_ref().map(v),
-            r2_s: v(&self.r2_s),
-            r_s: v(&self.r_s),
-            c_s: v(&self.c_s),
+            d_s,
+            r2_s,
+            r_s,
+            c_s,
             dr_s: [f32x8::ZERO; 2],
         }
     }

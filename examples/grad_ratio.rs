@@ -29,13 +29,7 @@ fn main() -> umbra::Result<()> {
         _ => {}
     }
     let t = umbra::bench::grad_timing(&scene, model, spp, reps)?;
-    println!(
-        "forward {:.4} s, adjoint {:.4} s, interior {:.4} s: {:.2}x (interior {:.2}x)",
-        t.forward,
-        t.adjoint,
-        t.interior,
-        t.adjoint / t.forward,
-        t.interior / t.forward
-    );
+    println!("forward s | adjoint s | interior s | adjoint / forward | interior / forward");
+    println!("{}", t.ratio_cells());
     Ok(())
 }

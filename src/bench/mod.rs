@@ -303,6 +303,21 @@ pub struct GradTiming {
     pub interior: f64,
 }
 
+impl GradTiming {
+    /// `forward s | adjoint s | interior s | adjoint / forward | interior / forward`, as
+    /// the cells of a Markdown row.
+    pub fn ratio_cells(&self) -> String {
+        format!(
+            "{:.4} | {:.4} | {:.4} | {:.2} | {:.2}",
+            self.forward,
+            self.adjoint,
+            self.interior,
+            self.adjoint / self.forward,
+            self.interior / self.forward
+        )
+    }
+}
+
 /// Times forward and adjoint passes, interleaved, `reps` times each after a warm-up;
 /// the adjoint histogram is that of an L2 loss against the scene moved 2 cm.
 pub fn grad_timing(scene: &Scene, model: Model, spp: u32, reps: usize) -> Result<GradTiming> {

@@ -338,14 +338,10 @@ pub fn tri3_ratios(args: &BenchArgs) -> umbra::Result<()> {
             };
             let t = bench::grad_timing(&scene, Model::Tri3, 1, args.reps)?;
             println!(
-                "| {name} | {} | {:?} | {:.4} | {:.4} | {:.4} | {:.2} | {:.2} |",
+                "| {name} | {} | {:?} | {} |",
                 if gaussian { "gaussian" } else { "box" },
                 scene.render.visibility,
-                t.forward,
-                t.adjoint,
-                t.interior,
-                t.adjoint / t.forward,
-                t.interior / t.forward
+                t.ratio_cells()
             );
         }
     }

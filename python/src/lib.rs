@@ -9,7 +9,8 @@
 //!   the interpreter); a Ctrl-C during a long render, gradient or fit raises
 //!   `KeyboardInterrupt` after cancelling the work.
 //! - The GIL is released while rendering: the work runs on a scoped thread while the
-//!   calling thread sleeps without the GIL, waking every 20 ms to check for signals.
+//!   calling thread sleeps without the GIL, waking every 20 ms to check for signals and
+//!   at once when the work ends.
 
 mod fit;
 mod options;
@@ -121,8 +122,9 @@ fn like_render<'py>(
     Ok(a)
 }
 
-/// Runs `work` on a scoped thread without the GIL, checking for Ctrl-C every 20 ms: a
-/// signal cancels the work (through `progress`) and is re-raised once it has stopped.
+/// Runs `work` on a scoped thread without the GIL, checking for Ctrl-C every 20 ms (and
+/// returning as soon as the work ends): a signal cancels the work (through `progress`)
+/// and is re-raised once it has stopped.
 pub fn run_interruptible<T: Send>(
     py: Python<'_>,
     threads: Option<usize>,
@@ -132,8 +134,15 @@ pub fn run_interruptible<T: Send>(
     let pool =
         umbra::threads::pool(threads, "threads").map_err(|e| UmbraError::new_err(e.to_string()))?;
     let mut signal = None;
+    let caller = std::thread::current();
     let result = std::thread::scope(|s| {
-        let handle = s.spawn(|| pool.install(|| work(&progress)));
+        let handle = s.spawn(|| {
+            let r = pool.install(|| work(&progress));
+            // Wake the caller now rather than at its next 20 ms check: a render of a few
+            // ms would otherwise cost a whole period (every call took >= 20 ms).
+            caller.unpark();
+            r
+        });
         while !handle.is_finished() {
             if signal.is_none() {
                 if let Err(e) = py.check_signals() {
@@ -141,7 +150,7 @@ pub fn run_interruptible<T: Send>(
                     signal = Some(e);
                 }
             }
-            py.detach(|| std::thread::sleep(std::time::Duration::from_millis(20)));
+            py.detach(|| std::thread::park_timeout(std::time::Duration::from_millis(20)));
         }
         handle.join()
     });

@@ -22,6 +22,10 @@ use grad_cli::{grad, gradcheck, GradArgs, GradcheckArgs};
 #[path = "umbra_cli/fit.rs"]
 mod fit_cli;
 
+/// `umbra recon`.
+#[path = "umbra_cli/recon.rs"]
+mod recon_cli;
+
 /// `umbra bench`.
 #[path = "umbra_cli/bench.rs"]
 mod bench_cli;
@@ -52,6 +56,10 @@ enum Command {
     /// from the scene's hidden objects with the path model and fit that, a
     /// demonstration with a known answer).
     Fit(FitCliArgs),
+    /// A classical reconstruction (bp, fbp, lct, pf) of a measurement, its per-column
+    /// depth surface, and with --truth that surface's score against the scene's hidden
+    /// objects (seen Chamfer, completeness, depth error).
+    Recon(ReconCliArgs),
     /// Built-in benchmarks: `tri3` (speed on the 10k-triangle reference case and the
     /// error-vs-subdivision table); `grad` (adjoint against forward time, and the
     /// adjoint's peak memory against spp).
@@ -82,6 +90,17 @@ struct FitCliArgs {
     define: Vec<String>,
     #[command(flatten)]
     fit: fit_cli::FitArgs,
+}
+
+#[derive(clap::Args)]
+struct ReconCliArgs {
+    /// Scene (TOML or Mitsuba XML); default: the built-in default scene.
+    scene: Option<PathBuf>,
+    /// Mitsuba-style defines for XML scenes, NAME=VALUE.
+    #[arg(short = 'D', long = "define")]
+    define: Vec<String>,
+    #[command(flatten)]
+    recon: recon_cli::ReconArgs,
 }
 
 #[derive(clap::Args)]
@@ -117,6 +136,8 @@ fn main() {
         Command::Gradcheck(args) => gradcheck(args),
         Command::Fit(args) => load_scene(args.scene.as_deref(), &args.define)
             .and_then(|scene| fit_cli::fit(args.fit, scene)),
+        Command::Recon(args) => load_scene(args.scene.as_deref(), &args.define)
+            .and_then(|scene| recon_cli::recon(args.recon, scene)),
         Command::ExportMitsuba(args) => {
             load_scene(args.scene.as_deref(), &args.define).and_then(|scene| {
                 let out = umbra::scene::mitsuba_xml::write::write(&scene, &args.output)?;

@@ -82,7 +82,7 @@ pub fn point_triangle_distance(p: DVec3, [a, b, c]: [DVec3; 3]) -> f64 {
     p.distance(DVec3::from_array(q))
 }
 
-fn distances(points: &[DVec3], m: &Mesh) -> Vec<f64> {
+pub(crate) fn distances(points: &[DVec3], m: &Mesh) -> Vec<f64> {
     let tris: Vec<[DVec3; 3]> = (0..m.faces.len()).map(|f| tri(m, f)).collect();
     points
         .par_iter()
@@ -94,7 +94,7 @@ fn distances(points: &[DVec3], m: &Mesh) -> Vec<f64> {
         .collect()
 }
 
-fn mean_p90(mut d: Vec<f64>) -> (f64, f64) {
+pub(crate) fn mean_p90(mut d: Vec<f64>) -> (f64, f64) {
     if d.is_empty() {
         return (f64::NAN, f64::NAN);
     }
@@ -119,7 +119,12 @@ pub fn chamfer(fit: &Mesh, truth: &Mesh, n: usize) -> Chamfer {
 /// The points of `n` samples on `mesh` that face, and are unoccluded from, one of the
 /// nine viewpoints on `scene`'s scan rectangle, with `mesh` as the scene's only hidden
 /// object; and their share of the samples.
-fn seen_samples(mesh: &Mesh, scene: &Scene, two_sided: bool, n: usize) -> (Vec<DVec3>, f64) {
+pub(crate) fn seen_samples(
+    mesh: &Mesh,
+    scene: &Scene,
+    two_sided: bool,
+    n: usize,
+) -> (Vec<DVec3>, f64) {
     let scene = Scene {
         objects: vec![super::objective::hidden_object(
             mesh,

@@ -24,10 +24,12 @@ pub mod reconstruction;
 pub mod request;
 pub mod resolution;
 pub mod run;
+pub mod score;
 pub mod time_offset;
 
 pub use intensity::{intensity_l2, Background, Intensity, IntensityModel};
 pub use objective::UmbraObjective;
+pub use prepare::to_mesh;
 
 use crate::geometry::mesh::TriMesh;
 

@@ -12,7 +12,9 @@ use crate::transport::{RenderOptions, Renderer};
 use optim::{Mesh, Schedule};
 use std::path::Path;
 
-pub(super) fn to_mesh(scene: &Scene, what: &str) -> Result<Mesh> {
+/// The hidden objects of `scene` as one mesh (`what` names it in the error if there are
+/// none).
+pub fn to_mesh(scene: &Scene, what: &str) -> Result<Mesh> {
     let mut m = Mesh::default();
     for o in &scene.objects {
         let part = super::fit_mesh(&o.mesh);

@@ -182,6 +182,9 @@ pub struct Summary {
     /// fit can reach at this resolution).
     pub photon_noise_floor: Option<f64>,
     pub chamfer: Option<ChamferSummary>,
+    /// With a known truth: the baselines study's score (`fit::score`), the same numbers
+    /// `umbra recon --truth` gives a reconstruction's surface.
+    pub score: Option<super::score::SurfaceScore>,
 }
 
 /// What [`run`] returns.
@@ -501,6 +504,7 @@ pub fn run(
         init: req.init.clone(),
         photon_noise_floor: noise_floor,
         chamfer: None,
+        score: None,
     };
     if let Some((truth, truth_scene)) = truth {
         let (c, seen) = chamfer_seen(&report.mesh, &truth, &truth_scene, 4000);
@@ -515,6 +519,11 @@ pub fn run(
             truth_seen_area_fraction: seen[1],
             whole_mm: 1e3 * all.symmetric,
         });
+        summary.score = Some(super::score::score_surface(
+            &report.mesh,
+            &truth,
+            &truth_scene,
+        )?);
     }
     let path = req.output.join("summary.toml");
     let text = toml::to_string(&summary).map_err(|e| Error::Invalid(format!("summary: {e}")))?;

@@ -53,10 +53,16 @@
 mod backprojection;
 mod depth;
 mod image;
+mod lct;
+mod method;
+mod phasor;
 
 pub use backprojection::{backproject, backproject_with, downsample_time, zero_bins_before};
 pub use depth::{depth_map, depth_map_mesh, surface_depth_map, DepthMap, MeshOptions};
 pub use image::{write_comparison_png, write_depth_png, write_volume_png};
+pub use lct::{lct, LctOptions};
+pub use method::{reconstruct, volume_surface, Method};
+pub use phasor::{phasor_field, PhasorOptions};
 
 use crate::error::{Error, Result};
 use crate::io::lct::LctCapture;

@@ -4,6 +4,7 @@
 
 pub mod exact_interreflection;
 pub mod exact_shadows;
+pub mod patch;
 
 use std::path::Path;
 use umbra::geometry::mesh::TriMesh;

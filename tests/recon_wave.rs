@@ -1,0 +1,112 @@
+//! The light-cone transform and phasor fields (`umbra::recon::{lct, phasor_field}`) on
+//! transients Umbra renders of known planes (the patch of tests/recon.rs): depths within
+//! 1.5 bins, the patch's extent, the tilt's slope; LCT's refusals.
+
+mod common;
+use common::patch::*;
+use common::*;
+use umbra::recon::*;
+use umbra::scene::Model;
+
+/// The scan's own columns (LCT needs them): 16 x 16 at 5 cm, 5 mm voxels in depth.
+fn scan_grid(s: &umbra::scene::Scene) -> VoxelGrid {
+    VoxelGrid::over_scan(s, 0.3, 0.7, [16, 16, 80]).unwrap()
+}
+
+#[test]
+fn lct_confocal_planes() {
+    for tilt in [0.0f32, 20.0] {
+        let s = patch_scene("confocal", tilt, 16);
+        let t = render(&s, Model::Tri3, 1, 0);
+        let g = scan_grid(&s);
+        let v = lct(&s, &t.data, &g, &LctOptions::default()).unwrap();
+        let d = depth_map(&v, 0.3).unwrap();
+        let tan = tilt.to_radians().tan();
+        let slope = check_patch(&format!("LCT, tilt {tilt}°"), &g, &d, tan);
+        eprintln!("slope {slope:.3}, true {tan:.3}");
+        assert!((slope - tan).abs() < 0.2 * tan.max(0.1), "slope {slope}");
+    }
+}
+
+#[test]
+fn lct_is_linear_and_independent_of_the_thread_count() {
+    let s = patch_scene("confocal", 20.0, 16);
+    let t = render(&s, Model::Tri3, 1, 0);
+    let g = scan_grid(&s);
+    let one = on_threads(1, || lct(&s, &t.data, &g, &LctOptions::default()).unwrap());
+    let two = on_threads(2, || lct(&s, &t.data, &g, &LctOptions::default()).unwrap());
+    assert_eq!(one.data, two.data);
+    // Twice the data, twice the volume (the Wiener filter is linear; ρ ≥ 0 clamps
+    // both alike).
+    let double: Vec<f32> = t.data.iter().map(|v| 2.0 * v).collect();
+    let v2 = lct(&s, &double, &g, &LctOptions::default()).unwrap();
+    let peak = one.data.iter().cloned().fold(0.0, f32::max);
+    assert!(peak > 0.0);
+    for (a, b) in one.data.iter().zip(&v2.data) {
+        assert!((2.0 * a - b).abs() <= 1e-4 * peak, "{a} {b}");
+    }
+}
+
+#[test]
+fn lct_refuses_what_it_cannot_do() {
+    let single = patch_scene("single", 0.0, 16);
+    let t = render(&single, Model::Tri3, 1, 0);
+    let e = lct(
+        &single,
+        &t.data,
+        &scan_grid(&single),
+        &LctOptions::default(),
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("confocal"), "{e}");
+    let s = patch_scene("confocal", 0.0, 16);
+    let t = render(&s, Model::Tri3, 1, 0);
+    // A grid that is not the scan's columns.
+    let g = VoxelGrid::over_scan(&s, 0.3, 0.7, [32, 32, 80]).unwrap();
+    let e = lct(&s, &t.data, &g, &LctOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("columns"), "{e}");
+    let e = lct(&s, &t.data[1..], &scan_grid(&s), &LctOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("values"), "{e}");
+    let mut bad = t.data.clone();
+    bad[7] = f32::NAN;
+    let e = lct(&s, &bad, &scan_grid(&s), &LctOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("not finite"), "{e}");
+    let e = lct(&s, &t.data, &scan_grid(&s), &LctOptions { snr: 0.0 }).unwrap_err();
+    assert!(e.to_string().contains("snr"), "{e}");
+}
+
+#[test]
+fn phasor_field_planes_confocal_and_single() {
+    for capture in ["confocal", "single"] {
+        for tilt in [0.0f32, 20.0] {
+            let s = patch_scene(capture, tilt, 16);
+            let t = render(&s, Model::Tri3, 1, 0);
+            let g = VoxelGrid::over_scan(&s, 0.3, 0.7, [32, 32, 80]).unwrap();
+            // λ of two scan spacings (10 cm) resolves ~5 cm: the patch's edge columns
+            // blur, the depth of its centre does not.
+            let v = phasor_field(&s, &t.data, &g, &PhasorOptions::for_scene(&s)).unwrap();
+            // As FBP's single-capture test: the lit spot's falloff dims the far columns.
+            let d = depth_map(&v, if capture == "single" { 0.3 } else { 0.5 }).unwrap();
+            let tan = tilt.to_radians().tan();
+            let slope = check_patch(
+                &format!("phasor field, {capture}, tilt {tilt}°"),
+                &g,
+                &d,
+                tan,
+            );
+            eprintln!("slope {slope:.3}, true {tan:.3}");
+            assert!((slope - tan).abs() < 0.2 * tan.max(0.1), "slope {slope}");
+        }
+    }
+}
+
+#[test]
+fn phasor_field_refuses_bad_options() {
+    let s = patch_scene("confocal", 0.0, 8);
+    let t = render(&s, Model::Tri3, 1, 0);
+    let g = VoxelGrid::over_scan(&s, 0.3, 0.7, [8, 8, 40]).unwrap();
+    for (wavelength, cycles) in [(0.0, 4.0), (0.1, f32::NAN), (-1.0, 4.0), (100.0, 4.0)] {
+        let opts = PhasorOptions { wavelength, cycles };
+        assert!(phasor_field(&s, &t.data, &g, &opts).is_err(), "{opts:?}");
+    }
+}

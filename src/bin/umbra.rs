@@ -60,6 +60,9 @@ enum Command {
     /// depth surface, and with --truth that surface's score against the scene's hidden
     /// objects (seen Chamfer, completeness, depth error).
     Recon(ReconCliArgs),
+    /// Write a measurement in another format with the scene's capture geometry: .npy,
+    /// .exr or y-tal .hdf5 (e.g. a mitransient .npy for y-tal's reconstructions).
+    Convert(ConvertArgs),
     /// Built-in benchmarks: `tri3` (speed on the 10k-triangle reference case and the
     /// error-vs-subdivision table); `grad` (adjoint against forward time, and the
     /// adjoint's peak memory against spp).
@@ -90,6 +93,38 @@ struct FitCliArgs {
     define: Vec<String>,
     #[command(flatten)]
     fit: fit_cli::FitArgs,
+}
+
+#[derive(clap::Args)]
+struct ConvertArgs {
+    /// Scene (TOML or Mitsuba XML) whose capture the measurement is.
+    scene: Option<PathBuf>,
+    /// Mitsuba-style defines for XML scenes, NAME=VALUE.
+    #[arg(short = 'D', long = "define")]
+    define: Vec<String>,
+    /// The measurement (.npy in the scene's layout, y-tal .hdf5 or an LCT .mat).
+    #[arg(long)]
+    measured: PathBuf,
+    /// Output file: .npy, .exr or .hdf5 / .h5.
+    #[arg(short, long)]
+    output: PathBuf,
+}
+
+/// `umbra convert`.
+fn convert(args: ConvertArgs) -> umbra::Result<()> {
+    let scene = load_scene(args.scene.as_deref(), &args.define)?;
+    umbra::io::check_output(&args.output)?;
+    let m = umbra::io::measured::read_measured(&args.measured)?;
+    let scene = m.scene_for(&scene)?;
+    m.check_against(&scene)?;
+    umbra::io::write_capture(&args.output, &m.transient, &scene)?;
+    println!(
+        "umbra convert: {} {:?} -> {}",
+        args.measured.display(),
+        m.transient.shape,
+        args.output.display()
+    );
+    Ok(())
 }
 
 #[derive(clap::Args)]
@@ -136,6 +171,7 @@ fn main() {
         Command::Gradcheck(args) => gradcheck(args),
         Command::Fit(args) => load_scene(args.scene.as_deref(), &args.define)
             .and_then(|scene| fit_cli::fit(args.fit, scene)),
+        Command::Convert(args) => convert(args),
         Command::Recon(args) => load_scene(args.scene.as_deref(), &args.define)
             .and_then(|scene| recon_cli::recon(args.recon, scene)),
         Command::ExportMitsuba(args) => {

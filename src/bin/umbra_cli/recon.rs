@@ -8,8 +8,10 @@
 use std::path::PathBuf;
 use std::time::Instant;
 use umbra::fit::score::{score_surface, SurfaceScore};
+use umbra::geometry::mesh::TriMesh;
 use umbra::recon::{
-    reconstruct, volume_surface, write_depth_png, write_volume_png, Method, Volume, VoxelGrid,
+    reconstruct, surface_depth_map, volume_surface, write_depth_png, write_volume_png, DepthMap,
+    Method, Volume, VoxelGrid, WallFrame,
 };
 use umbra::scene::Scene;
 use umbra::transport::Transient;
@@ -29,6 +31,10 @@ pub struct ReconArgs {
     /// and scored the same way.
     #[arg(long, conflicts_with = "measured")]
     pub volume: Option<PathBuf>,
+    /// Instead of reconstructing: a surface mesh (.obj, world space; e.g. a fit's
+    /// mesh.obj), its depth map taken on the grid's columns and scored the same way.
+    #[arg(long, conflicts_with_all = ["measured", "volume"])]
+    pub mesh: Option<PathBuf>,
     /// Voxels NX,NY,NZ over the scan rectangle (default: the scan's resolution, 128).
     #[arg(long, value_parser = parse_dims)]
     pub grid: Option<[usize; 3]>,
@@ -56,7 +62,8 @@ pub struct ReconArgs {
     /// Score the surface against the scene's hidden objects (summary.toml [score]).
     #[arg(long)]
     pub truth: bool,
-    /// Output directory: volume.npy, depth.png, volume.png, surface.obj, summary.toml.
+    /// Output directory: volume.npy, depth.npy ((ny, nx), m from the wall, NaN where
+    /// empty), depth.png, volume.png, surface.obj, summary.toml.
     #[arg(short, long, default_value = "out/recon")]
     pub output: PathBuf,
 }
@@ -106,10 +113,11 @@ pub fn recon(args: ReconArgs, scene: Scene) -> Result<()> {
             m.check_against(&s)?;
             (s, Some(m.transient.data))
         }
-        None if args.volume.is_some() => (scene, None),
+        None if args.volume.is_some() || args.mesh.is_some() => (scene, None),
         None => {
             return Err(Error::Invalid(
-                "umbra recon needs --measured FILE (or --volume VOL.npy)".into(),
+                "umbra recon needs --measured FILE (or --volume VOL.npy, or --mesh MESH.obj)"
+                    .into(),
             ))
         }
     };
@@ -121,38 +129,52 @@ pub fn recon(args: ReconArgs, scene: Scene) -> Result<()> {
         None => VoxelGrid::for_scene(&scene, dims)?,
     };
     let start = Instant::now();
-    let (name, volume) = match (&args.volume, data) {
-        (Some(path), _) => ("volume".to_string(), read_volume(path, &grid)?),
-        (None, Some(mut data)) => {
-            if let Some(opl) = args.ignore_before {
-                let film = &scene.film;
-                let first = ((opl - film.start_opl) / film.bin_width_opl)
-                    .ceil()
-                    .max(0.0);
-                let bins = film.temporal_bins as usize;
-                umbra::recon::zero_bins_before(&mut data, bins, (first as usize).min(bins));
-            }
-            let method = method(&args, &scene)?;
-            (
-                method.name().to_string(),
-                reconstruct(&scene, &data, &grid, &method)?,
-            )
-        }
-        (None, None) => unreachable!("checked above"),
-    };
-    let seconds = start.elapsed().as_secs_f64();
-    let (depth, surface) = volume_surface(&volume, &scene, args.threshold)?;
     let out = &args.output;
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    let (name, depth, surface) = if let Some(path) = &args.mesh {
+        let mesh = TriMesh::load_obj(path)?;
+        let depth = mesh_depth(&scene, &mesh, &grid);
+        ("mesh".to_string(), depth, mesh)
+    } else {
+        let (name, volume) = match (&args.volume, data) {
+            (Some(path), _) => ("volume".to_string(), read_volume(path, &grid)?),
+            (None, Some(mut data)) => {
+                if let Some(opl) = args.ignore_before {
+                    let film = &scene.film;
+                    let first = ((opl - film.start_opl) / film.bin_width_opl)
+                        .ceil()
+                        .max(0.0);
+                    let bins = film.temporal_bins as usize;
+                    umbra::recon::zero_bins_before(&mut data, bins, (first as usize).min(bins));
+                }
+                let method = method(&args, &scene)?;
+                (
+                    method.name().to_string(),
+                    reconstruct(&scene, &data, &grid, &method)?,
+                )
+            }
+            (None, None) => unreachable!("checked above"),
+        };
+        let (depth, surface) = volume_surface(&volume, &scene, args.threshold)?;
+        umbra::io::write_npy(
+            &out.join("volume.npy"),
+            &Transient {
+                data: volume.data.clone(),
+                shape: vec![dims[1], dims[0], dims[2]],
+            },
+        )?;
+        write_volume_png(&out.join("volume.png"), &volume)?;
+        (name, depth, surface)
+    };
+    let seconds = start.elapsed().as_secs_f64();
     umbra::io::write_npy(
-        &out.join("volume.npy"),
+        &out.join("depth.npy"),
         &Transient {
-            data: volume.data.clone(),
-            shape: vec![dims[1], dims[0], dims[2]],
+            data: depth.depth.clone(),
+            shape: vec![dims[1], dims[0]],
         },
     )?;
     write_depth_png(&out.join("depth.png"), &depth)?;
-    write_volume_png(&out.join("volume.png"), &volume)?;
     let mesh = umbra::fit::fit_mesh(&surface);
     let obj = out.join("surface.obj");
     optim::checkpoint::write_atomic(&obj, mesh.to_obj().as_bytes())
@@ -233,6 +255,24 @@ fn method(args: &ReconArgs, scene: &Scene) -> Result<Method> {
         )));
     }
     Ok(m)
+}
+
+/// The depth map of `mesh` (two-sided) on the columns of `grid`.
+fn mesh_depth(scene: &Scene, mesh: &TriMesh, grid: &VoxelGrid) -> DepthMap {
+    let with_mesh = Scene {
+        objects: vec![umbra::fit::objective::hidden_object(
+            &umbra::fit::fit_mesh(mesh),
+            1.0,
+            true,
+            Default::default(),
+        )],
+        ..scene.clone()
+    };
+    surface_depth_map(
+        &umbra::geometry::SceneGeometry::build(&with_mesh),
+        grid,
+        &WallFrame::of(scene),
+    )
 }
 
 /// A `(ny, nx, nz)` volume on `grid`, finite.

@@ -15,9 +15,10 @@
 //! solved for `ρ̃` by a Wiener filter, `ρ̂̃ = H̄ F / (|H|² + 1/snr)`, with `h` scaled to
 //! unit L2 norm so `|H|²` averages 1 (the paper's code does the same). Steps:
 //!
-//! 1. each scan point's histogram, read as a density at `r = √v_j` by linear
-//!    interpolation (the OPL `2r + legs`), times `r³`, on `M` bins uniform in `v` over
-//!    `[0, R²]` (`R`: the farthest distance the film sees);
+//! 1. each scan point's histogram as a density in `r` (the OPL `2r + legs`), averaged
+//!    over each of `M` bins uniform in `v` over `[0, R²]` (`R`: the farthest distance the
+//!    film sees; every count lands in one `v` bin, as the paper's resampling operator
+//!    sums its fine samples), times `r³` at the bin's centre;
 //! 2. zero-padded to `2 ny × 2 nx × 2 M` so the convolution does not wrap, FFT, filter,
 //!    inverse FFT (`rustfft`, one axis at a time, lines in parallel: deterministic);
 //! 3. `ρ(x, z) = 2z ρ̃(x, z²)` read at the grid's depths, negative values set to 0.
@@ -95,13 +96,32 @@ pub fn lct(scene: &Scene, data: &[f32], grid: &VoxelGrid, opts: &LctOptions) -> 
     let dv = r_max * r_max / m_bins as f32;
     let dims = [2 * ny, 2 * nx, 2 * m_bins];
     let mut f = vec![Complex32::new(0.0, 0.0); dims[0] * dims[1] * dims[2]];
+    let mut cumulative = vec![0.0f64; bins + 1];
     for (m, &(ix, iy)) in cells.iter().enumerate() {
         let h = &data[m * bins..(m + 1) * bins];
+        for (b, &v) in h.iter().enumerate() {
+            cumulative[b + 1] = cumulative[b] + v as f64;
+        }
+        // The histogram's integral up to OPL `2r + legs`, in counts (linear within a bin).
+        let integral = |r: f64| {
+            let fb = (2.0 * r + lg[m] as f64 - film.start_opl as f64) / film.bin_width_opl as f64;
+            let fb = fb.clamp(0.0, bins as f64);
+            let b = (fb.floor() as usize).min(bins - 1);
+            cumulative[b] + (fb - b as f64) * h[b] as f64
+        };
         let line = &mut f[(iy * dims[1] + ix) * dims[2]..][..m_bins];
+        let mut below = integral(0.0);
         for (j, out) in line.iter_mut().enumerate() {
-            let r = (((j as f32 + 0.5) * dv) as f64).sqrt() as f32;
-            let fb = (2.0 * r + lg[m] - film.start_opl) / film.bin_width_opl - 0.5;
-            out.re = r * r * r * interpolate(h, fb);
+            // The v bin [j, j + 1) Δv is r in [√(j Δv), √((j + 1) Δv)): the mean density
+            // over it (every count lands in one v bin, none is skipped), times r³.
+            let (r_lo, r_hi) = (
+                ((j as f64) * dv as f64).sqrt(),
+                (((j + 1) as f64) * dv as f64).sqrt(),
+            );
+            let above = integral(r_hi);
+            let r = ((j as f64 + 0.5) * dv as f64).sqrt();
+            out.re = (r * r * r * (above - below) / (r_hi - r_lo)) as f32;
+            below = above;
         }
     }
     // 2. the cone, unit L2 norm, on the padded lattice (offsets wrap).
@@ -192,24 +212,6 @@ fn scan_cells(scene: &Scene, grid: &VoxelGrid) -> Result<Vec<(usize, usize)>> {
             Ok(c)
         })
         .collect()
-}
-
-/// `h` at the continuous bin coordinate `fb` (bin `b` at `fb = b`), linear, zero at the
-/// virtual bins just outside.
-fn interpolate(h: &[f32], fb: f32) -> f32 {
-    let at = |i: i64| {
-        if i < 0 || i >= h.len() as i64 {
-            0.0
-        } else {
-            h[i as usize]
-        }
-    };
-    if !(fb > -1.0 && fb < h.len() as f32) {
-        return 0.0;
-    }
-    let i = fb.floor();
-    let t = fb - i;
-    (1.0 - t) * at(i as i64) + t * at(i as i64 + 1)
 }
 
 fn interpolate_complex_re(line: &[Complex32], q: f32) -> f32 {

@@ -47,6 +47,15 @@ pub struct ReconArgs {
     /// Zero the bins before this OPL (m): residual direct light in measured data.
     #[arg(long)]
     pub ignore_before: Option<f32>,
+    /// Sum every K consecutive bins first (e.g. 4 or 8 for the 1.2 mm bins of the LCT
+    /// captures, where photon noise per bin swamps the reconstruction).
+    #[arg(long, default_value_t = 1)]
+    pub time_bin: usize,
+    /// Subtract from each histogram the mean of its last tenth of bins: the ambient and
+    /// dark-count floor of measured data, which LCT's r³ weight (and any sum over late
+    /// bins) turns into a haze growing with depth.
+    #[arg(long)]
+    pub subtract_floor: bool,
     /// bp/fbp: standard deviation (m of OPL) of a Gaussian blur along time first.
     #[arg(long)]
     pub time_sigma: Option<f32>,
@@ -109,9 +118,13 @@ pub fn recon(args: ReconArgs, scene: Scene) -> Result<()> {
     let (scene, data) = match &args.measured {
         Some(path) => {
             let m = umbra::io::measured::read_measured(path)?;
-            let s = m.scene_for(&scene)?;
+            let mut s = m.scene_for(&scene)?;
             m.check_against(&s)?;
-            (s, Some(m.transient.data))
+            let mut data = m.transient.data;
+            if args.time_bin > 1 {
+                (s.film, data) = umbra::recon::downsample_time(&s.film, &data, args.time_bin)?;
+            }
+            (s, Some(data))
         }
         None if args.volume.is_some() || args.mesh.is_some() => (scene, None),
         None => {
@@ -146,6 +159,9 @@ pub fn recon(args: ReconArgs, scene: Scene) -> Result<()> {
                         .max(0.0);
                     let bins = film.temporal_bins as usize;
                     umbra::recon::zero_bins_before(&mut data, bins, (first as usize).min(bins));
+                }
+                if args.subtract_floor {
+                    subtract_floor(&mut data, scene.film.temporal_bins as usize);
                 }
                 let method = method(&args, &scene)?;
                 (
@@ -255,6 +271,15 @@ fn method(args: &ReconArgs, scene: &Scene) -> Result<Method> {
         )));
     }
     Ok(m)
+}
+
+/// Each histogram less the mean of its last tenth of bins.
+fn subtract_floor(data: &mut [f32], bins: usize) {
+    let tail = (bins / 10).max(1);
+    for h in data.chunks_exact_mut(bins) {
+        let floor = h[bins - tail..].iter().map(|&v| v as f64).sum::<f64>() / tail as f64;
+        h.iter_mut().for_each(|v| *v -= floor as f32);
+    }
 }
 
 /// The depth map of `mesh` (two-sided) on the columns of `grid`.

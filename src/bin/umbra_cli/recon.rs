@@ -32,8 +32,9 @@ pub struct ReconArgs {
     #[arg(long, conflicts_with = "measured")]
     pub volume: Option<PathBuf>,
     /// Instead of reconstructing: a surface mesh (.obj, world space; e.g. a fit's
-    /// mesh.obj), its depth map taken on the grid's columns and scored the same way.
-    #[arg(long, conflicts_with_all = ["measured", "volume"])]
+    /// mesh.obj), its depth map taken on the grid's columns and scored the same way
+    /// (with --measured, only the measurement's capture geometry is used).
+    #[arg(long, conflicts_with = "volume")]
     pub mesh: Option<PathBuf>,
     /// Voxels NX,NY,NZ over the scan rectangle (default: the scan's resolution, 128).
     #[arg(long, value_parser = parse_dims)]

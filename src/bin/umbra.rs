@@ -108,6 +108,12 @@ struct ConvertArgs {
     /// Output file: .npy, .exr or .hdf5 / .h5.
     #[arg(short, long)]
     output: PathBuf,
+    /// Zero the bins before this OPL (m): residual direct light in measured data.
+    #[arg(long)]
+    ignore_before: Option<f32>,
+    /// Sum every K consecutive bins (the film's bin width grows K times).
+    #[arg(long, default_value_t = 1)]
+    time_bin: usize,
 }
 
 /// `umbra convert`.
@@ -115,13 +121,30 @@ fn convert(args: ConvertArgs) -> umbra::Result<()> {
     let scene = load_scene(args.scene.as_deref(), &args.define)?;
     umbra::io::check_output(&args.output)?;
     let m = umbra::io::measured::read_measured(&args.measured)?;
-    let scene = m.scene_for(&scene)?;
+    let mut scene = m.scene_for(&scene)?;
     m.check_against(&scene)?;
-    umbra::io::write_capture(&args.output, &m.transient, &scene)?;
+    let mut t = m.transient;
+    let bins = scene.film.temporal_bins as usize;
+    if let Some(opl) = args.ignore_before {
+        let film = &scene.film;
+        let first = ((opl - film.start_opl) / film.bin_width_opl)
+            .ceil()
+            .max(0.0) as usize;
+        umbra::recon::zero_bins_before(&mut t.data, bins, first.min(bins));
+    }
+    if args.time_bin > 1 {
+        let (film, data) = umbra::recon::downsample_time(&scene.film, &t.data, args.time_bin)?;
+        scene.film = film;
+        t.data = data;
+        if let Some(last) = t.shape.last_mut() {
+            *last = scene.film.temporal_bins as usize;
+        }
+    }
+    umbra::io::write_capture(&args.output, &t, &scene)?;
     println!(
         "umbra convert: {} {:?} -> {}",
         args.measured.display(),
-        m.transient.shape,
+        t.shape,
         args.output.display()
     );
     Ok(())

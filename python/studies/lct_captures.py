@@ -1,0 +1,154 @@
+"""Every Stanford LCT capture (../shared/data/lct/, O'Toole et al. 2018): Umbra's fit with
+the reflectance model each needs, its relative L2 against the capture's photon floor and its
+time, next to the light-cone transform (Umbra's `recon::lct`) and y-tal's f-k migration of the
+same capture (issue 20; docs/BASELINES.md).
+
+    .venv/bin/python python/studies/lct_captures.py [--captures diffuse_s,...]
+        [--models lambertian,retroreflective] [--out out/lct_captures] [--docs docs]
+
+Per capture and model: `umbra fit scenes/lct.toml --measured data_X.mat --init plane`
+(the defaults of docs/FITTING.md: bins before OPL 0.72 m left out, 8,2 binning, per-bin
+background, the measured impulse response), `--reflectance retroreflective` for the
+retroreflective model. The reconstructions: `umbra recon --method lct --time-bin 8
+--subtract-floor --snr 0.1` on 64 x 64 x 256 voxels over 0.2-1.2 m, and y-tal's fk
+(ytal_recon.py) of the same preprocessed capture (`umbra convert --ignore-before 0.72
+--time-bin 8`) on the same grid, both shown as front maximum projections over the depths
+where the papers place the objects (0.25-0.9 m) and as depth maps.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(os.path.dirname(HERE))
+sys.path.insert(0, HERE)
+from baselines import UMBRA, YTAL_PYTHON, YTAL_RECON, read_toml, run  # noqa: E402
+
+DATA = os.path.join(ROOT, "..", "shared", "data", "lct")
+CAPTURES = ("diffuse_s", "s_u", "exit_sign", "outdoor_s", "resolution_chart_40cm",
+            "resolution_chart_65cm", "dot_chart_40cm", "dot_chart_65cm")
+GRID = ["--grid", "64,64,256", "--depths", "0.2,1.2"]
+SHOW = (0.25, 0.9)
+
+
+def fit(capture, model, out):
+    """`umbra fit` of the capture with `model`; its summary, and the fitted surface's depth
+    map on the reconstructions' grid (fit/depth/depth.npy)."""
+    d = os.path.join(out, f"{capture}-{model}")
+    mat = os.path.join(DATA, f"data_{capture}.mat")
+    cmd = [UMBRA, "fit", os.path.join(ROOT, "scenes", "lct.toml"), "--measured", mat,
+           "--init", "plane", "-q", "-o", d]
+    if model == "retroreflective":
+        cmd += ["--reflectance", "retroreflective"]
+    run(cmd)
+    run([UMBRA, "recon", os.path.join(ROOT, "scenes", "lct.toml"), "--measured", mat,
+         "--mesh", os.path.join(d, "mesh.obj"), *GRID, "-o", os.path.join(d, "depth")])
+    return read_toml(os.path.join(d, "summary.toml")), os.path.join(d, "depth", "depth.npy")
+
+
+def lct(capture, out):
+    """Umbra's LCT of the capture; its output folder (volume.npy, summary.toml)."""
+    d = os.path.join(out, f"{capture}-lct")
+    run([UMBRA, "recon", os.path.join(ROOT, "scenes", "lct.toml"), "--measured",
+         os.path.join(DATA, f"data_{capture}.mat"), "--method", "lct", "--ignore-before",
+         "0.72", "--time-bin", "8", "--subtract-floor", "--snr", "0.1", *GRID, "-o", d])
+    return d
+
+
+def fk(capture, out, grid_of):
+    """y-tal's f-k migration of the capture on the LCT run's grid (`grid_of`: its
+    summary.toml); the volume's path, or None with the reason printed."""
+    d = os.path.join(out, f"{capture}-fk")
+    os.makedirs(d, exist_ok=True)
+    h5 = os.path.join(d, "capture.hdf5")
+    run([UMBRA, "convert", os.path.join(ROOT, "scenes", "lct.toml"), "--measured",
+         os.path.join(DATA, f"data_{capture}.mat"), "--ignore-before", "0.72", "--time-bin",
+         "8", "-o", h5])
+    g = read_toml(grid_of)
+    gpath = os.path.join(d, "grid.json")
+    with open(gpath, "w") as f:
+        json.dump({"min": g["grid_min"], "max": g["grid_max"], "dims": g["grid_dims"]}, f)
+    vol = os.path.join(d, "volume.npy")
+    try:
+        run([YTAL_PYTHON, YTAL_RECON, h5, gpath, "fk", vol, "--json", os.path.join(d, "timing.json")])
+    except RuntimeError as e:
+        print(f"{capture}: y-tal fk failed: {str(e).splitlines()[0]}", flush=True)
+        return None
+    return vol
+
+
+def front(volume, z, window=SHOW):
+    """Front maximum projection over `window` and the argmax depth there, seen from the
+    wall (+x to the left)."""
+    k = (z >= window[0]) & (z <= window[1])
+    v = volume[:, :, k]
+    return v.max(2)[::-1, ::-1], z[k][v.argmax(2)][::-1, ::-1]
+
+
+def picture(path, capture, lct_dir, fk_vol, fits):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    g = read_toml(os.path.join(lct_dir, "summary.toml"))
+    nz = g["grid_dims"][2]
+    z = g["grid_min"][2] + (np.arange(nz) + 0.5) * (g["grid_max"][2] - g["grid_min"][2]) / nz
+    panels = [("LCT (Umbra)", *front(np.load(os.path.join(lct_dir, "volume.npy")), z))]
+    if fk_vol:
+        panels.append(("f-k (y-tal)", *front(np.load(fk_vol), z)))
+    fig, axes = plt.subplots(1, len(panels) + len(fits), figsize=(2.4 * (len(panels) + len(fits)), 2.8))
+    axes = np.atleast_1d(axes)
+    for ax, (name, mip, _) in zip(axes, panels):
+        ax.imshow(mip, cmap="magma")
+        ax.set_title(name, fontsize=8)
+    for ax, (model, depth_path, l2) in zip(axes[len(panels):], fits):
+        d = np.load(depth_path)[::-1, ::-1]
+        ax.imshow(d, cmap="viridis", vmin=SHOW[0], vmax=SHOW[1])
+        ax.set_title(f"fit, {model}\ndepth {SHOW[0]}-{SHOW[1]} m, L2 {l2:.3f}", fontsize=8)
+    for ax in axes:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.suptitle(capture, fontsize=9)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--captures", default=",".join(CAPTURES))
+    ap.add_argument("--models", default="lambertian,retroreflective")
+    ap.add_argument("--out", default=os.path.join(ROOT, "out", "lct_captures"))
+    ap.add_argument("--docs", default=os.path.join(ROOT, "docs"))
+    args = ap.parse_args(argv)
+    rows = []
+    for c in args.captures.split(","):
+        lct_dir = lct(c, args.out)
+        fk_vol = fk(c, args.out, os.path.join(lct_dir, "summary.toml"))
+        fits = []
+        for m in args.models.split(","):
+            s, depth = fit(c, m, args.out)
+            floor = s.get("photon_noise_floor")
+            rows.append((c, m, s["relative_l2"], floor, s["seconds"]))
+            fits.append((m, depth, s["relative_l2"]))
+            print(f"{c} {m}: relative L2 {s['relative_l2']:.3f} (floor {floor}), {s['seconds']:.0f} s",
+                  flush=True)
+        if args.docs:
+            os.makedirs(os.path.join(args.docs, "baselines"), exist_ok=True)
+            picture(os.path.join(args.docs, "baselines", f"lct_{c}.png"), c, lct_dir, fk_vol, fits)
+    if args.docs:
+        os.makedirs(os.path.join(args.docs, "baselines"), exist_ok=True)
+        with open(os.path.join(args.docs, "baselines", "lct_captures.md"), "w") as f:
+            f.write("<!-- generated by python/studies/lct_captures.py; do not edit -->\n")
+            f.write("| capture | model | relative L2 | photon floor | L2 / floor | fit time (s) |\n")
+            f.write("|---|---|---|---|---|---|\n")
+            for c, m, l2, floor, sec in rows:
+                ratio = f"{l2 / floor:.2f}" if floor else "n/a"
+                f.write(f"| {c} | {m} | {l2:.3f} | {floor:.3f} | {ratio} | {sec:.0f} |\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -90,7 +90,9 @@ def ytal_volume(xml, measured, method, out, scan, capture_h5):
     with open(gpath, "w") as f:
         json.dump(grid, f)
     vol, timing = os.path.join(out, "ytal_volume.npy"), os.path.join(out, "ytal_timing.json")
-    run([YTAL_PYTHON, YTAL_RECON, capture_h5, gpath, method, vol, "--json", timing])
+    # y-tal's bp and fbp build every index array at once (about 27 GB here): in chunks.
+    chunks = ["--downscale", "32"] if method in ("bp", "fbp") else []
+    run([YTAL_PYTHON, YTAL_RECON, capture_h5, gpath, method, vol, "--json", timing, *chunks])
     s = umbra_recon(xml, out, scan, ["--volume", vol])
     with open(timing) as f:
         s["seconds"] = json.load(f)["seconds"]

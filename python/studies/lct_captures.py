@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import sys
 
 import numpy as np
@@ -32,7 +33,12 @@ from baselines import UMBRA, YTAL_PYTHON, YTAL_RECON, read_toml, run  # noqa: E4
 DATA = os.path.join(ROOT, "..", "shared", "data", "lct")
 CAPTURES = ("diffuse_s", "s_u", "exit_sign", "outdoor_s", "resolution_chart_40cm",
             "resolution_chart_65cm", "dot_chart_40cm", "dot_chart_65cm")
-GRID = ["--grid", "64,64,256", "--depths", "0.2,1.2"]
+SCAN = {"outdoor_s": 32}  # the others: 64 x 64
+
+
+def grid(capture):
+    n = SCAN.get(capture, 64)
+    return ["--grid", f"{n},{n},256", "--depths", "0.2,1.2"]
 SHOW = (0.25, 0.9)
 
 
@@ -40,6 +46,7 @@ def fit(capture, model, out):
     """`umbra fit` of the capture with `model`; its summary, and the fitted surface's depth
     map on the reconstructions' grid (fit/depth/depth.npy)."""
     d = os.path.join(out, f"{capture}-{model}")
+    shutil.rmtree(os.path.join(d, "checkpoint"), ignore_errors=True)  # a fresh fit
     mat = os.path.join(DATA, f"data_{capture}.mat")
     cmd = [UMBRA, "fit", os.path.join(ROOT, "scenes", "lct.toml"), "--measured", mat,
            "--init", "plane", "-q", "-o", d]
@@ -47,7 +54,7 @@ def fit(capture, model, out):
         cmd += ["--reflectance", "retroreflective"]
     run(cmd)
     run([UMBRA, "recon", os.path.join(ROOT, "scenes", "lct.toml"), "--measured", mat,
-         "--mesh", os.path.join(d, "mesh.obj"), *GRID, "-o", os.path.join(d, "depth")])
+         "--mesh", os.path.join(d, "mesh.obj"), *grid(capture), "-o", os.path.join(d, "depth")])
     return read_toml(os.path.join(d, "summary.toml")), os.path.join(d, "depth", "depth.npy")
 
 
@@ -56,7 +63,7 @@ def lct(capture, out):
     d = os.path.join(out, f"{capture}-lct")
     run([UMBRA, "recon", os.path.join(ROOT, "scenes", "lct.toml"), "--measured",
          os.path.join(DATA, f"data_{capture}.mat"), "--method", "lct", "--ignore-before",
-         "0.72", "--time-bin", "8", "--subtract-floor", "--snr", "0.1", *GRID, "-o", d])
+         "0.72", "--time-bin", "8", "--subtract-floor", "--snr", "0.1", *grid(capture), "-o", d])
     return d
 
 

@@ -279,49 +279,8 @@ def scene_dict(name, capture, scan=SCAN, bins=BINS, bin_width=BIN_WIDTH, start_o
     return scene
 
 
-def _dict_to_xml(scene):
-    """Fallback for umbra.dict_to_xml (same output for the plugins used here) when the
-    `umbra` package is not installed."""
-    cat = {"transient_nlos_path": "integrator", "projector": "emitter", "obj": "shape",
-           "rectangle": "shape", "diffuse": "bsdf", "nlos_capture_meter": "sensor",
-           "transient_hdr_film": "film", "box": "rfilter", "independent": "sampler"}
-
-    def el(name, v, ind):
-        attr = f' name="{name}"' if name is not None else ""
-        if isinstance(v, dict):
-            kind = v["type"]
-            if kind == "rgb":
-                text = ", ".join(str(float(x)) for x in np.atleast_1d(v["value"]))
-                return f'{ind}<rgb{attr} value="{text}"/>\n'
-            tag = cat[kind]
-            ident = f' id="{name}"' if name is not None and tag in ("shape", "emitter") else ""
-            body = "".join(el(k, x, ind + "    ") for k, x in v.items() if k != "type")
-            return f'{ind}<{tag} type="{kind}"{ident}>\n{body}{ind}</{tag}>\n'
-        if isinstance(v, bool):
-            return f'{ind}<boolean{attr} value="{"true" if v else "false"}"/>\n'
-        if isinstance(v, (int, np.integer)):
-            return f'{ind}<integer{attr} value="{int(v)}"/>\n'
-        if isinstance(v, (float, np.floating)):
-            return f'{ind}<float{attr} value="{float(v)!r}"/>\n'
-        if isinstance(v, str):
-            return f'{ind}<string{attr} value="{v}"/>\n'
-        a = np.asarray(v, dtype=np.float64)
-        if a.shape == (4, 4):
-            values = " ".join(repr(float(x)) for x in a.ravel())
-            return (f'{ind}<transform{attr}>\n{ind}    <matrix value="{values}"/>\n'
-                    f'{ind}</transform>\n')
-        x, y, z = (repr(float(c)) for c in a)
-        return f'{ind}<point{attr} x="{x}" y="{y}" z="{z}"/>\n'
-
-    body = "".join(el(k, v, "    ") for k, v in scene.items() if k != "type")
-    return f'<scene version="3.0.0">\n{body}</scene>\n'
-
-
 def dict_to_xml(scene):
-    try:
-        import umbra
-    except ImportError:
-        return _dict_to_xml(scene)
+    import umbra
     return umbra.dict_to_xml(scene)
 
 

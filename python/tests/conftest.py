@@ -56,3 +56,22 @@ def cache_dir() -> Path:
     d = VALIDATION / "cache"
     d.mkdir(exist_ok=True)
     return d
+
+
+YTAL_PYTHON = os.environ.get("UMBRA_YTAL_PYTHON", str(REPO / ".venv-ytal" / "bin" / "python"))
+
+
+def require_ytal() -> str:
+    """Fail (not skip) the calling test unless y-tal 0.20.0's venv (`.venv-ytal`, or the
+    interpreter UMBRA_YTAL_PYTHON names) imports `tal`; its Python."""
+    import subprocess
+    ok = os.path.isfile(YTAL_PYTHON) and subprocess.run(
+        [YTAL_PYTHON, "-c", "import tal"], capture_output=True).returncode == 0
+    if not ok:
+        pytest.fail(
+            f"y-tal's venv not found or without y-tal: {YTAL_PYTHON!r}. Create it with "
+            "`python3 -m venv .venv-ytal && .venv-ytal/bin/pip install y-tal==0.20.0` "
+            "(test.sh does) or point UMBRA_YTAL_PYTHON at a Python with y-tal 0.20.0.",
+            pytrace=False,
+        )
+    return YTAL_PYTHON

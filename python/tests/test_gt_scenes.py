@@ -12,8 +12,8 @@ noise), target_poisson.npy holds integer counts whose sum is the stated photon c
 (within 5 sigma), and every object's three-bounce OPL window lies inside the film with
 light in its own bins; no light before the windows, little after them, ~none in the film's
 last bins. Also: mitransient's scan points and laser spot are the ones gt_scenes computes
-its windows with, its objects' bounding boxes those of gt.truth_meshes; the Poisson draw;
-gt's fallback XML writer against umbra.dict_to_xml. About 12 s (2026-12-03, 2 cores
+its windows with, its objects' bounding boxes those of gt.truth_meshes; the Poisson draw.
+About 12 s (2026-12-03, 2 cores
 shared with another process).
 
     .venv/bin/python -m pytest -q -s python/tests/test_gt_scenes.py
@@ -109,14 +109,6 @@ def test_poisson_expected_count():
     assert (P[0, 0] == 0).all()
     np.testing.assert_array_equal(P, gt.poisson(H, 1e5, seed=1))
     assert not np.array_equal(P, gt.poisson(H, 1e5, seed=2))
-
-
-def test_xml_writer_matches_umbra():
-    umbra = pytest.importorskip("umbra")
-    for name in gt.SCENES:
-        for capture in gt.CAPTURES:
-            d = gt.scene_dict(name, capture, scan=8)
-            assert gt._dict_to_xml(d) == umbra.dict_to_xml(d)
 
 
 def test_geometry_is_mitransients(mt, tmp_path):

@@ -14,10 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import REPO, VALIDATION, require_umbra
+from conftest import REPO, VALIDATION, YTAL_PYTHON, require_umbra, require_ytal
 
 T_XML = VALIDATION / "scenes" / "T.xml"
-YTAL_PYTHON = os.environ.get("UMBRA_YTAL_PYTHON", str(REPO / ".venv-ytal" / "bin" / "python"))
 
 # Runs in .venv-ytal: read the capture with y-tal and dump what it saw.
 READER = r"""
@@ -45,19 +44,6 @@ print(json.dumps({
     "scene_info": d.scene_info,
 }))
 """
-
-
-def require_ytal() -> str:
-    ok = os.path.isfile(YTAL_PYTHON) and subprocess.run(
-        [YTAL_PYTHON, "-c", "import tal"], capture_output=True).returncode == 0
-    if not ok:
-        pytest.fail(
-            f"y-tal's venv not found or without y-tal: {YTAL_PYTHON!r}. Create it with "
-            "`python3 -m venv .venv-ytal && .venv-ytal/bin/pip install y-tal==0.20.0` "
-            "(test.sh does) or point UMBRA_YTAL_PYTHON at a Python with y-tal 0.20.0.",
-            pytrace=False,
-        )
-    return YTAL_PYTHON
 
 
 def render(exe: str, out: Path, capture: str, scan_x: int, scan_y: int) -> None:

@@ -20,9 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import REPO, require_umbra
+from conftest import REPO, YTAL_PYTHON, require_umbra, require_ytal
 
-YTAL_PYTHON = os.environ.get("UMBRA_YTAL_PYTHON", str(REPO / ".venv-ytal" / "bin" / "python"))
 RUNNER = REPO / "python" / "studies" / "ytal_recon.py"
 
 BIN = 0.01                      # film bin width (m of OPL)
@@ -81,19 +80,6 @@ file = "p.obj"
 visibility = "none"
 """
 OFF_GRID = {"min": [-0.3, -0.45, 0.3], "max": [0.5, 0.35, 0.7], "dims": [24, 24, 80]}
-
-
-def require_ytal() -> str:
-    ok = os.path.isfile(YTAL_PYTHON) and subprocess.run(
-        [YTAL_PYTHON, "-c", "import tal"], capture_output=True).returncode == 0
-    if not ok:
-        pytest.fail(
-            f"y-tal's venv not found or without y-tal: {YTAL_PYTHON!r}. Create it with "
-            "`python3 -m venv .venv-ytal && .venv-ytal/bin/pip install y-tal==0.20.0` "
-            "(test.sh does) or point UMBRA_YTAL_PYTHON at a Python with y-tal 0.20.0.",
-            pytrace=False,
-        )
-    return YTAL_PYTHON
 
 
 def render(exe: str, d: Path, toml: str, obj: str) -> Path:

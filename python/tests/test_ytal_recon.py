@@ -32,8 +32,14 @@ FAR_FILLED_MAX = 0.25           # "mostly empty"
 
 PATCH_OBJ = (f"v {-HALF} {-HALF} {DEPTH}\nv {HALF} {-HALF} {DEPTH}\nv {HALF} {HALF} {DEPTH}\n"
              f"v {-HALF} {HALF} {DEPTH}\nf 1 4 3 2\n")
-PATCH_TOML = """
+
+
+def patch_toml(capture, bins=128, start_opl=0.8, centre=None, legs=False):
+    """The patch scene of tests/recon.rs (16 x 16 scan over 0.8 m, 1 cm bins); `centre`
+    moves the scan, `legs` counts laser -> spot and point -> detector in the times."""
+    return f"""
 capture_type = "{capture}"
+{"account_first_and_last_bounces = true" if legs else ""}
 [wall]
 size = [2.0, 2.0]
 [laser]
@@ -42,15 +48,18 @@ target = [0.2, -0.1, 0.0]
 [scan]
 resolution = [16, 16]
 size = [0.8, 0.8]
+{f"center = [{centre[0]}, {centre[1]}, 0.0]" if centre else ""}
 [film]
-temporal_bins = 128
+temporal_bins = {bins}
 bin_width_opl = 0.01
-start_opl = 0.8
+start_opl = {start_opl}
 [[objects]]
 file = "p.obj"
 [render]
 visibility = "none"
 """
+
+
 GRID = {"min": [-0.4, -0.4, 0.3], "max": [0.4, 0.4, 0.7], "dims": [32, 32, 80]}
 
 # A 15 cm square at (0.175, -0.125, 0.45), a scan centred at (0.1, -0.05), and time that
@@ -58,27 +67,7 @@ GRID = {"min": [-0.4, -0.4, 0.3], "max": [0.4, 0.4, 0.7], "dims": [32, 32, 80]}
 OFF_CENTRE, OFF_DEPTH = (0.175, -0.125), 0.45
 OFF_OBJ = ("v 0.1 -0.2 0.45\nv 0.25 -0.2 0.45\nv 0.25 -0.05 0.45\nv 0.1 -0.05 0.45\n"
            "f 1 4 3 2\n")
-OFF_TOML = """
-capture_type = "confocal"
-account_first_and_last_bounces = true
-[wall]
-size = [2.0, 2.0]
-[laser]
-origin = [0.3, -0.4, 1.0]
-target = [0.2, -0.1, 0.0]
-[scan]
-resolution = [16, 16]
-size = [0.8, 0.8]
-center = [0.1, -0.05, 0.0]
-[film]
-temporal_bins = 170
-bin_width_opl = 0.01
-start_opl = 2.75
-[[objects]]
-file = "p.obj"
-[render]
-visibility = "none"
-"""
+OFF_TOML = patch_toml("confocal", bins=170, start_opl=2.75, centre=(0.1, -0.05), legs=True)
 OFF_GRID = {"min": [-0.3, -0.45, 0.3], "max": [0.5, 0.35, 0.7], "dims": [24, 24, 80]}
 
 
@@ -97,8 +86,8 @@ class Captures:
     test that needs it (conftest.require_umbra), as a missing .venv-ytal does."""
 
     SCENES = {
-        "confocal": (PATCH_TOML.format(capture="confocal"), PATCH_OBJ),
-        "single": (PATCH_TOML.format(capture="single"), PATCH_OBJ),
+        "confocal": (patch_toml("confocal"), PATCH_OBJ),
+        "single": (patch_toml("single"), PATCH_OBJ),
         "offcentre": (OFF_TOML, OFF_OBJ),
     }
 

@@ -110,3 +110,28 @@ fn phasor_field_refuses_bad_options() {
         assert!(phasor_field(&s, &t.data, &g, &opts).is_err(), "{opts:?}");
     }
 }
+
+/// `--init lct`: the fit's initial mesh from the LCT's depth map lies on the tilted patch
+/// (seen Chamfer within 1.5 bins of depth), and a single capture is refused by name.
+#[test]
+fn lct_initial_mesh_lies_on_the_patch() {
+    use umbra::fit::run::initial_mesh;
+    use umbra::fit::Init;
+    let s = patch_scene("confocal", 20.0, 16);
+    let t = render(&s, Model::Tri3, 1, 0);
+    let mesh = initial_mesh(&s, &t.data, 0, &Init::Lct).unwrap();
+    let truth = umbra::fit::to_mesh(&s, "truth").unwrap();
+    let (c, _) = umbra::fit::metrics::chamfer_seen(&mesh, &truth, &s, 2000);
+    eprintln!(
+        "LCT start: {} faces, seen Chamfer {:.1} mm (start -> truth {:.1}, truth -> start {:.1})",
+        mesh.faces.len(),
+        1e3 * c.symmetric,
+        1e3 * c.fit_to_truth,
+        1e3 * c.truth_to_fit
+    );
+    assert!(c.fit_to_truth < DEPTH_TOL as f64, "{c:?}");
+    let single = patch_scene("single", 20.0, 16);
+    let t = render(&single, Model::Tri3, 1, 0);
+    let e = initial_mesh(&single, &t.data, 0, &Init::Lct).unwrap_err();
+    assert!(e.to_string().contains("confocal"), "{e}");
+}

@@ -10,6 +10,7 @@ Methods, each on the same measurement and the same voxel grid (the scan's column
                                its volume made a surface and scored by `umbra recon --volume`
   umbra fit                    `umbra fit --init plane` (default schedule), mesh.obj scored
                                by `umbra recon --mesh`
+  umbra fit-lct                the same from the LCT's depth map (`--init lct`, confocal)
 A volume becomes a surface the usual way: per-column argmax depth where the column's peak is
 at least 0.3 of the volume's maximum, triangulated as a height field. Every surface gets the
 same score (`umbra::fit::score`): seen Chamfer, depth error over the truth's columns (mean,
@@ -28,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -45,8 +47,10 @@ YTAL_RECON = os.path.join(HERE, "ytal_recon.py")
 
 UMBRA_METHODS = ("bp", "fbp", "lct", "pf")
 YTAL_METHODS = ("bp", "fbp", "fk")
-CONFOCAL_ONLY = {"umbra lct", "y-tal fk"}
-ALL_METHODS = [f"umbra {m}" for m in UMBRA_METHODS] + [f"y-tal {m}" for m in YTAL_METHODS] + ["umbra fit"]
+CONFOCAL_ONLY = {"umbra lct", "y-tal fk", "umbra fit-lct"}
+FITS = ("umbra fit", "umbra fit-lct")  # from a plane; from the LCT's depth map (--init lct)
+ALL_METHODS = ([f"umbra {m}" for m in UMBRA_METHODS] + [f"y-tal {m}" for m in YTAL_METHODS]
+               + list(FITS))
 DEPTHS = (0.4, 1.6)
 DEPTH_STEP = 0.002
 THRESHOLD = 0.3
@@ -99,10 +103,11 @@ def ytal_volume(xml, measured, method, out, scan, capture_h5):
     return s
 
 
-def umbra_fit(xml, measured, out, scan):
-    """`umbra fit --init plane` (default schedule); its mesh scored like the rest."""
+def umbra_fit(xml, measured, out, scan, init="plane"):
+    """`umbra fit --init INIT` (default schedule); its mesh scored like the rest."""
     os.makedirs(out, exist_ok=True)
-    run([UMBRA, "fit", xml, "--measured", measured, "--truth", "--init", "plane", "-q",
+    shutil.rmtree(os.path.join(out, "fit", "checkpoint"), ignore_errors=True)
+    run([UMBRA, "fit", xml, "--measured", measured, "--truth", "--init", init, "-q",
          "-o", os.path.join(out, "fit")])
     fit = read_toml(os.path.join(out, "fit", "summary.toml"))
     s = umbra_recon(xml, out, scan, ["--mesh", os.path.join(out, "fit", "mesh.obj")])
@@ -141,8 +146,8 @@ def run_case(gt_dir, out, name, capture, noise, methods, scan, log=print):
         t0 = time.time()
         try:
             kind, method = m.split(" ")
-            if m == "umbra fit":
-                s = umbra_fit(xml, measured, d, scan)
+            if m in FITS:
+                s = umbra_fit(xml, measured, d, scan, "lct" if m == "umbra fit-lct" else "plane")
             elif kind == "umbra":
                 s = umbra_recon(xml, d, scan, ["--measured", measured, "--method", method])
             else:
@@ -191,9 +196,11 @@ def picture(path, title, results, methods):
 
 
 def table(all_results, methods):
-    """Markdown: one row per case, per method its seen Chamfer (mm); then the detail."""
-    lines = ["| case | " + " | ".join(methods) + " | fit / best baseline |",
-             "|---|" + "---|" * (len(methods) + 1)]
+    """Markdown: one row per case, per method its seen Chamfer (mm) and each fit's ratio to
+    the best baseline; then the detail."""
+    fits = [m for m in methods if m in FITS]
+    lines = ["| case | " + " | ".join(methods) + " | " + " | ".join(f"{f} / best baseline" for f in fits) + " |",
+             "|---|" + "---|" * (len(methods) + len(fits))]
     for case, res in all_results.items():
         cells, best = [], np.inf
         for m in methods:
@@ -205,11 +212,12 @@ def table(all_results, methods):
             else:
                 c = s["score"]["seen_chamfer_mm"]
                 cells.append(f"{c:.2f}")
-                if m != "umbra fit":
+                if m not in FITS:
                     best = min(best, c)
-        fit = res.get("umbra fit", {}).get("score", {}).get("seen_chamfer_mm")
-        ratio = f"{fit / best:.2f}" if fit is not None and np.isfinite(best) else "n/a"
-        lines.append(f"| {case} | " + " | ".join(cells) + f" | {ratio} |")
+        for f in fits:
+            c = res.get(f, {}).get("score", {}).get("seen_chamfer_mm")
+            cells.append(f"{c / best:.2f}" if c is not None and np.isfinite(best) else "n/a")
+        lines.append(f"| {case} | " + " | ".join(cells) + " |")
     lines += ["", "| case | method | seen Chamfer (mm) | depth error mean / p90 (mm) | "
               "completeness | columns filled | time (s) |", "|---|---|---|---|---|---|---|"]
     for case, res in all_results.items():

@@ -70,6 +70,31 @@ pub fn backprojection_mesh(scene: &Scene, measured: &[f32], first_bin: usize) ->
     Ok(super::fit_mesh(&m))
 }
 
+/// The initial mesh of `Init::Lct`: the height field over the filled columns of the
+/// light-cone transform's depth map, one column per scan point, over the depths the fitted
+/// bins see (`recon::lct`, confocal captures only).
+pub fn lct_mesh(scene: &Scene, measured: &[f32], first_bin: usize) -> Result<Mesh> {
+    let dims = [scene.scan.nx as usize, scene.scan.ny as usize, 256];
+    let mut grid = VoxelGrid::for_scene(scene, dims)?;
+    if !scene.account_first_and_last_bounces && first_bin > 0 {
+        let z = 0.5 * (scene.film.start_opl + first_bin as f32 * scene.film.bin_width_opl);
+        if z < grid.max.z {
+            grid = VoxelGrid::over_scan(scene, z.max(grid.min.z), grid.max.z, dims)?;
+        }
+    }
+    let volume = crate::recon::lct(scene, measured, &grid, &crate::recon::LctOptions::default())?;
+    let depth = depth_map(&volume, DEPTH_THRESHOLD)?;
+    let m = depth_map_mesh(
+        &depth,
+        &grid,
+        &WallFrame::of(scene),
+        &MeshOptions {
+            smooth_iterations: 2,
+        },
+    )?;
+    Ok(super::fit_mesh(&m))
+}
+
 /// Writes the picture of the module doc to `path`; `fitted` is the whole fitted mesh
 /// with its per-vertex albedo.
 pub fn write_reconstruction_png(

@@ -349,9 +349,10 @@ pub fn run(
         "sphere" => Init::Sphere,
         "scene" => Init::Mesh(to_mesh(&scene, &format!("{} scene", n("init")))?),
         "backprojection" => Init::Backprojection,
+        "lct" => Init::Lct,
         other => {
             return Err(Error::Invalid(format!(
-                "{}: '{other}' is not one of plane, sphere, scene, backprojection",
+                "{}: '{other}' is not one of plane, sphere, scene, backprojection, lct",
                 n("init")
             )))
         }

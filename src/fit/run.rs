@@ -43,6 +43,8 @@ pub enum Init {
     Mesh(Mesh),
     /// The height field of a filtered backprojection's depth map (`crate::recon`).
     Backprojection,
+    /// The height field of the light-cone transform's depth map (confocal captures).
+    Lct,
 }
 
 /// Settings of a fit besides the schedule.
@@ -268,6 +270,7 @@ pub fn initial_mesh(
         }
         Init::Mesh(m) => m.clone(),
         Init::Backprojection => backprojection_mesh(scene, measured, first_bin)?,
+        Init::Lct => super::reconstruction::lct_mesh(scene, measured, first_bin)?,
     })
 }
 

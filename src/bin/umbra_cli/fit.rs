@@ -26,7 +26,8 @@ pub struct FitArgs {
     #[arg(short, long, default_value = "out/fit")]
     pub output: PathBuf,
     /// Initial mesh: plane, sphere, scene (the scene's hidden objects), or
-    /// backprojection (the height field of a filtered backprojection's depth map).
+    /// backprojection (the height field of a filtered backprojection's depth map), or lct
+    /// (the same of the light-cone transform's; confocal captures).
     #[arg(long, default_value = "plane")]
     pub init: String,
     /// Schedule TOML ([[stage]] tables: iters, solver, lr, large_steps, laplacian,

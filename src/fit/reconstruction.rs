@@ -16,13 +16,11 @@
 //! albedo is what cuts a letter out of a plane); the backprojection's depth map and the
 //! fitted surface's, on one depth scale, near dark and far bright.
 
-use super::objective::hidden_object;
 use crate::error::Result;
-use crate::geometry::SceneGeometry;
 use crate::io::plot::{labelled_maps, MapPanel};
 use crate::recon::{
-    backproject_with, depth_map, depth_map_mesh, surface_depth_map, BackprojectOptions, DepthMap,
-    MeshOptions, Volume, VoxelGrid, WallFrame,
+    backproject_with, depth_map, depth_map_mesh, BackprojectOptions, DepthMap, MeshOptions, Volume,
+    VoxelGrid, WallFrame,
 };
 use crate::scene::Scene;
 use optim::Mesh;
@@ -30,6 +28,19 @@ use std::path::Path;
 
 /// Columns whose backprojected peak is below this fraction of the maximum are empty.
 pub const DEPTH_THRESHOLD: f32 = 0.3;
+
+/// `[nx, ny, nz]` voxels over the scan and the depths the fitted bins (from `first_bin`)
+/// can see.
+fn fitted_grid(scene: &Scene, first_bin: usize, dims: [usize; 3]) -> Result<VoxelGrid> {
+    let grid = VoxelGrid::for_scene(scene, dims)?;
+    if !scene.account_first_and_last_bounces && first_bin > 0 {
+        let z = 0.5 * (scene.film.start_opl + first_bin as f32 * scene.film.bin_width_opl);
+        if z < grid.max.z {
+            return VoxelGrid::over_scan(scene, z.max(grid.min.z), grid.max.z, dims);
+        }
+    }
+    Ok(grid)
+}
 
 /// The backprojection of the module doc on `[nx, ny, nz]` voxels; `first_bin` is the
 /// first bin of each row the fit uses (the measurement is zero before it).
@@ -39,13 +50,7 @@ fn backprojection(
     first_bin: usize,
     dims: [usize; 3],
 ) -> Result<(Volume, DepthMap)> {
-    let mut grid = VoxelGrid::for_scene(scene, dims)?;
-    if !scene.account_first_and_last_bounces && first_bin > 0 {
-        let z = 0.5 * (scene.film.start_opl + first_bin as f32 * scene.film.bin_width_opl);
-        if z < grid.max.z {
-            grid = VoxelGrid::over_scan(scene, z.max(grid.min.z), grid.max.z, dims)?;
-        }
-    }
+    let grid = fitted_grid(scene, first_bin, dims)?;
     let opts = BackprojectOptions {
         time_sigma_opl: scene.film.bin_width_opl,
         ..BackprojectOptions::default()
@@ -75,13 +80,7 @@ pub fn backprojection_mesh(scene: &Scene, measured: &[f32], first_bin: usize) ->
 /// bins see (`recon::lct`, confocal captures only).
 pub fn lct_mesh(scene: &Scene, measured: &[f32], first_bin: usize) -> Result<Mesh> {
     let dims = [scene.scan.nx as usize, scene.scan.ny as usize, 256];
-    let mut grid = VoxelGrid::for_scene(scene, dims)?;
-    if !scene.account_first_and_last_bounces && first_bin > 0 {
-        let z = 0.5 * (scene.film.start_opl + first_bin as f32 * scene.film.bin_width_opl);
-        if z < grid.max.z {
-            grid = VoxelGrid::over_scan(scene, z.max(grid.min.z), grid.max.z, dims)?;
-        }
-    }
+    let grid = fitted_grid(scene, first_bin, dims)?;
     let volume = crate::recon::lct(scene, measured, &grid, &crate::recon::LctOptions::default())?;
     let depth = depth_map(&volume, DEPTH_THRESHOLD)?;
     let m = depth_map_mesh(
@@ -110,12 +109,7 @@ pub fn write_reconstruction_png(
         128,
     ];
     let (volume, fbp_depth) = backprojection(scene, measured, first_bin, dims)?;
-    let with_fit = Scene {
-        objects: vec![hidden_object(fitted, 1.0, true, Default::default())],
-        ..scene.clone()
-    };
-    let geometry = SceneGeometry::build(&with_fit);
-    let fit_depth = surface_depth_map(&geometry, &volume.grid, &WallFrame::of(scene));
+    let fit_depth = super::score::mesh_depth_map(scene, fitted, true, &volume.grid);
     let [nx, ny, _] = volume.grid.dims;
     // Seen from the wall: +y up (top row last), +x to the left (last column first).
     let seen = |f: &dyn Fn(usize, usize) -> f32| -> Vec<f32> {

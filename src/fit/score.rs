@@ -20,7 +20,7 @@ use super::metrics::{chamfer_seen, distances, mean_p90, seen_samples, Chamfer};
 use super::objective::hidden_object;
 use crate::error::{Error, Result};
 use crate::geometry::SceneGeometry;
-use crate::recon::{surface_depth_map, VoxelGrid, WallFrame};
+use crate::recon::{surface_depth_map, DepthMap, VoxelGrid, WallFrame};
 use crate::scene::Scene;
 use optim::Mesh;
 use serde::Serialize;
@@ -67,15 +67,8 @@ pub fn score_surface(candidate: &Mesh, truth: &Mesh, truth_scene: &Scene) -> Res
     let completeness = near as f64 / truth_seen.len().max(1) as f64;
 
     let grid = VoxelGrid::over_scan(truth_scene, 0.0, 1.0, [COLUMNS, COLUMNS, 1])?;
-    let frame = WallFrame::of(truth_scene);
-    let depths = |mesh: &Mesh, two_sided: bool| {
-        let scene = Scene {
-            objects: vec![hidden_object(mesh, 1.0, two_sided, Default::default())],
-            ..truth_scene.clone()
-        };
-        surface_depth_map(&SceneGeometry::build(&scene), &grid, &frame).depth
-    };
-    let (dc, dt) = (depths(candidate, true), depths(truth, two_sided));
+    let dc = mesh_depth_map(truth_scene, candidate, true, &grid).depth;
+    let dt = mesh_depth_map(truth_scene, truth, two_sided, &grid).depth;
     let truth_columns = dt.iter().filter(|d| d.is_finite()).count();
     let errors: Vec<f64> = dc
         .iter()
@@ -97,6 +90,20 @@ pub fn score_surface(candidate: &Mesh, truth: &Mesh, truth_scene: &Scene) -> Res
         columns_filled: filled,
         faces: candidate.faces.len(),
     })
+}
+
+/// The depth map of `mesh` (as the only hidden object of `scene`) on the columns of
+/// `grid` (`recon::surface_depth_map`).
+pub fn mesh_depth_map(scene: &Scene, mesh: &Mesh, two_sided: bool, grid: &VoxelGrid) -> DepthMap {
+    let with_mesh = Scene {
+        objects: vec![hidden_object(mesh, 1.0, two_sided, Default::default())],
+        ..scene.clone()
+    };
+    surface_depth_map(
+        &SceneGeometry::build(&with_mesh),
+        grid,
+        &WallFrame::of(scene),
+    )
 }
 
 #[cfg(test)]

@@ -7,11 +7,11 @@
 
 use std::path::PathBuf;
 use std::time::Instant;
-use umbra::fit::score::{score_surface, SurfaceScore};
+use umbra::fit::objective::first_fitted_bin;
+use umbra::fit::score::{mesh_depth_map, score_surface, SurfaceScore};
 use umbra::geometry::mesh::TriMesh;
 use umbra::recon::{
-    reconstruct, surface_depth_map, volume_surface, write_depth_png, write_volume_png, DepthMap,
-    Method, Volume, VoxelGrid, WallFrame,
+    reconstruct, volume_surface, write_depth_png, write_volume_png, Method, Volume, VoxelGrid,
 };
 use umbra::scene::Scene;
 use umbra::transport::Transient;
@@ -143,32 +143,27 @@ pub fn recon(args: ReconArgs, scene: Scene) -> Result<()> {
         None => VoxelGrid::for_scene(&scene, dims)?,
     };
     let start = Instant::now();
+    // The reconstruction's own time (0 for a volume or mesh made elsewhere).
+    let mut seconds = 0.0;
     let out = &args.output;
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let (name, depth, surface) = if let Some(path) = &args.mesh {
         let mesh = TriMesh::load_obj(path)?;
-        let depth = mesh_depth(&scene, &mesh, &grid);
+        let depth = mesh_depth_map(&scene, &umbra::fit::fit_mesh(&mesh), true, &grid);
         ("mesh".to_string(), depth, mesh)
     } else {
         let (name, volume) = match (&args.volume, data) {
             (Some(path), _) => ("volume".to_string(), read_volume(path, &grid)?),
             (None, Some(mut data)) => {
-                if let Some(opl) = args.ignore_before {
-                    let film = &scene.film;
-                    let first = ((opl - film.start_opl) / film.bin_width_opl)
-                        .ceil()
-                        .max(0.0);
-                    let bins = film.temporal_bins as usize;
-                    umbra::recon::zero_bins_before(&mut data, bins, (first as usize).min(bins));
-                }
+                let first = first_fitted_bin(&scene, args.ignore_before);
+                umbra::recon::zero_bins_before(&mut data, scene.film.temporal_bins as usize, first);
                 if args.subtract_floor {
                     subtract_floor(&mut data, scene.film.temporal_bins as usize);
                 }
                 let method = method(&args, &scene)?;
-                (
-                    method.name().to_string(),
-                    reconstruct(&scene, &data, &grid, &method)?,
-                )
+                let volume = reconstruct(&scene, &data, &grid, &method)?;
+                seconds = start.elapsed().as_secs_f64();
+                (method.name().to_string(), volume)
             }
             (None, None) => unreachable!("checked above"),
         };
@@ -183,7 +178,6 @@ pub fn recon(args: ReconArgs, scene: Scene) -> Result<()> {
         write_volume_png(&out.join("volume.png"), &volume)?;
         (name, depth, surface)
     };
-    let seconds = start.elapsed().as_secs_f64();
     umbra::io::write_npy(
         &out.join("depth.npy"),
         &Transient {
@@ -281,24 +275,6 @@ fn subtract_floor(data: &mut [f32], bins: usize) {
         let floor = h[bins - tail..].iter().map(|&v| v as f64).sum::<f64>() / tail as f64;
         h.iter_mut().for_each(|v| *v -= floor as f32);
     }
-}
-
-/// The depth map of `mesh` (two-sided) on the columns of `grid`.
-fn mesh_depth(scene: &Scene, mesh: &TriMesh, grid: &VoxelGrid) -> DepthMap {
-    let with_mesh = Scene {
-        objects: vec![umbra::fit::objective::hidden_object(
-            &umbra::fit::fit_mesh(mesh),
-            1.0,
-            true,
-            Default::default(),
-        )],
-        ..scene.clone()
-    };
-    surface_depth_map(
-        &umbra::geometry::SceneGeometry::build(&with_mesh),
-        grid,
-        &WallFrame::of(scene),
-    )
 }
 
 /// A `(ny, nx, nz)` volume on `grid`, finite.

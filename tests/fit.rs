@@ -325,3 +325,74 @@ fn cli_fit_runs_resumes_and_reports_bad_input() {
     }
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// `--init auto` on the (confocal) default scene: a fit from each start in its own
+/// folder, the summary listing both losses, the kept start the one the rule picks (the
+/// LCT's unless the plane's loss is lower by more than 1 %), its outputs copied to the
+/// top (mesh.obj byte for byte), and a `--resume` of the finished pair ending the same.
+#[test]
+fn cli_init_auto_fits_both_starts_and_keeps_the_rule_s_choice() {
+    let exe = env!("CARGO_BIN_EXE_umbra");
+    let d = out_dir("auto");
+    std::fs::create_dir_all(&d).unwrap();
+    let config = d.join("schedule.toml");
+    std::fs::write(
+        &config,
+        "[[stage]]\niters = 3\nlr = 0.01\nlarge_steps = 10.0\ntime_downsample = 8\nscan_downsample = 4\n",
+    )
+    .unwrap();
+    let out = d.join("out");
+    let run = |extra: &[&str]| {
+        let r = std::process::Command::new(exe)
+            .args([
+                "fit",
+                "-q",
+                "--target-spp",
+                "16",
+                "--init",
+                "auto",
+                "--config",
+            ])
+            .arg(&config)
+            .arg("-o")
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        String::from_utf8_lossy(&r.stderr).into_owned()
+    };
+    let said = run(&[]);
+    assert!(said.contains("kept the"), "{said}");
+    let summary: toml::Value =
+        toml::from_str(&std::fs::read_to_string(out.join("summary.toml")).unwrap()).unwrap();
+    let starts = summary["starts"].as_array().unwrap();
+    let loss = |i: usize| starts[i]["final_loss"].as_float().unwrap();
+    assert_eq!(starts[0]["init"].as_str(), Some("plane"));
+    assert_eq!(starts[1]["init"].as_str(), Some("lct"));
+    let kept = if loss(0) < loss(1) * (1.0 - umbra::fit::request::AUTO_LOSS_MARGIN) {
+        "plane"
+    } else {
+        "lct"
+    };
+    assert_eq!(
+        summary["init"].as_str(),
+        Some(format!("auto: {kept}").as_str())
+    );
+    let kept_loss = if kept == "plane" { loss(0) } else { loss(1) };
+    assert_eq!(summary["final_loss"].as_float(), Some(kept_loss));
+    let mesh = std::fs::read(out.join("mesh.obj")).unwrap();
+    assert_eq!(
+        mesh,
+        std::fs::read(out.join(format!("start-{kept}")).join("mesh.obj")).unwrap()
+    );
+    for start in ["plane", "lct"] {
+        assert!(out
+            .join(format!("start-{start}/checkpoint/stage.bin"))
+            .is_file());
+    }
+    std::fs::remove_file(out.join("mesh.obj")).unwrap();
+    run(&["--resume"]);
+    assert_eq!(std::fs::read(out.join("mesh.obj")).unwrap(), mesh);
+    let _ = std::fs::remove_dir_all(&d);
+}

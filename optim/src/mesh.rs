@@ -44,35 +44,46 @@ impl Mesh {
 }
 
 impl Mesh {
-    /// The faces whose mean vertex value is at least `threshold` times the largest
-    /// vertex value, with unreferenced vertices removed (the mesh itself when it has no
-    /// vertex values). A fitted albedo near zero marks surface the data do not support.
-    pub fn without_dark_faces(&self, threshold: f64) -> Mesh {
+    /// Whether each face's mean vertex value is at least `threshold` times the largest
+    /// vertex value (every face when the mesh has no vertex values). A fitted albedo near
+    /// zero marks surface the data do not support.
+    pub fn bright_faces(&self, threshold: f64) -> Vec<bool> {
         if self.vertex_values.len() != self.vertices.len() {
-            return self.clone();
+            return vec![true; self.faces.len()];
         }
         let max = self.vertex_values.iter().cloned().fold(0.0, f64::max);
-        let keep: Vec<[u32; 3]> = self
-            .faces
+        self.faces
             .iter()
-            .filter(|f| {
+            .map(|f| {
                 f.iter()
                     .map(|&i| self.vertex_values[i as usize])
                     .sum::<f64>()
                     / 3.0
                     >= threshold * max
             })
-            .cloned()
-            .collect();
+            .collect()
+    }
+
+    /// The faces [`Mesh::bright_faces`] keeps, unreferenced vertices removed.
+    pub fn without_dark_faces(&self, threshold: f64) -> Mesh {
+        self.with_faces(&self.bright_faces(threshold))
+    }
+
+    /// The faces `keep` marks (one flag per face), with unreferenced vertices removed and
+    /// vertex values carried along.
+    pub fn with_faces(&self, keep: &[bool]) -> Mesh {
+        let values = self.vertex_values.len() == self.vertices.len();
         let mut remap = vec![u32::MAX; self.vertices.len()];
         let mut out = Mesh::default();
-        for f in &keep {
+        for (f, _) in self.faces.iter().zip(keep).filter(|(_, &k)| k) {
             let g = f.map(|i| {
                 let r = &mut remap[i as usize];
                 if *r == u32::MAX {
                     *r = out.vertices.len() as u32;
                     out.vertices.push(self.vertices[i as usize]);
-                    out.vertex_values.push(self.vertex_values[i as usize]);
+                    if values {
+                        out.vertex_values.push(self.vertex_values[i as usize]);
+                    }
                 }
                 *r
             });

@@ -208,6 +208,13 @@ pub fn fit<'py>(
     d.set_item("time_offset", summary.time_offset)?;
     d.set_item("seconds", summary.seconds)?;
     d.set_item("rejected_steps", summary.rejected_steps)?;
+    d.set_item("unsupported_faces", summary.unsupported_faces)?;
+    d.set_item("init", &summary.init)?;
+    let starts = PyDict::new(py);
+    for st in &summary.starts {
+        starts.set_item(&st.init, st.final_loss)?;
+    }
+    d.set_item("starts", starts)?;
     d.set_item("photon_noise_floor", summary.photon_noise_floor)?;
     match &summary.chamfer {
         None => d.set_item("chamfer", py.None())?,

@@ -8,9 +8,11 @@ Methods, each on the same measurement and the same voxel grid (the scan's column
   umbra bp / fbp / lct / pf   `umbra recon --method M` (LCT confocal only)
   y-tal bp / fbp / fk          y-tal 0.20.0 (ytal_recon.py in .venv-ytal; fk confocal only),
                                its volume made a surface and scored by `umbra recon --volume`
-  umbra fit                    `umbra fit --init plane` (default schedule), mesh.obj scored
-                               by `umbra recon --mesh`
-  umbra fit-lct                the same from the LCT's depth map (`--init lct`, confocal)
+  umbra fit                    `umbra fit --init auto` (default schedule): confocal, a fit
+                               from a plane and one from the LCT's depth map, the lower loss
+                               kept (the LCT's within 1 %); single capture, a plane. Its
+                               mesh.obj scored by `umbra recon --mesh`, and each start's as
+                               "umbra fit (plane start)" and "umbra fit (lct start)"
 A volume becomes a surface the usual way: per-column argmax depth where the column's peak is
 at least 0.3 of the volume's maximum, triangulated as a height field. Every surface gets the
 same score (`umbra::fit::score`): seen Chamfer, depth error over the truth's columns (mean,
@@ -47,10 +49,11 @@ YTAL_RECON = os.path.join(HERE, "ytal_recon.py")
 
 UMBRA_METHODS = ("bp", "fbp", "lct", "pf")
 YTAL_METHODS = ("bp", "fbp", "fk")
-CONFOCAL_ONLY = {"umbra lct", "y-tal fk", "umbra fit-lct"}
-FITS = ("umbra fit", "umbra fit-lct")  # from a plane; from the LCT's depth map (--init lct)
+CONFOCAL_ONLY = {"umbra lct", "y-tal fk"}
+STARTS = ("plane", "lct")         # the starts of --init auto, each scored too
+FITS = ("umbra fit",) + tuple(f"umbra fit ({s} start)" for s in STARTS)
 ALL_METHODS = ([f"umbra {m}" for m in UMBRA_METHODS] + [f"y-tal {m}" for m in YTAL_METHODS]
-               + list(FITS))
+               + ["umbra fit"])
 DEPTHS = (0.4, 1.6)
 DEPTH_STEP = 0.002
 THRESHOLD = 0.3
@@ -103,17 +106,26 @@ def ytal_volume(xml, measured, method, out, scan, capture_h5):
     return s
 
 
-def umbra_fit(xml, measured, out, scan, init="plane"):
-    """`umbra fit --init INIT` (default schedule); its mesh scored like the rest."""
+def umbra_fit(xml, measured, out, scan):
+    """`umbra fit --init auto` (default schedule); its mesh scored like the rest, and each
+    start's mesh (confocal: start-plane/, start-lct/) too. {variant: summary}."""
     os.makedirs(out, exist_ok=True)
-    shutil.rmtree(os.path.join(out, "fit", "checkpoint"), ignore_errors=True)
-    run([UMBRA, "fit", xml, "--measured", measured, "--truth", "--init", init, "-q",
-         "-o", os.path.join(out, "fit")])
-    fit = read_toml(os.path.join(out, "fit", "summary.toml"))
-    s = umbra_recon(xml, out, scan, ["--mesh", os.path.join(out, "fit", "mesh.obj")])
-    s["seconds"] = fit["seconds"]
-    s["relative_l2"] = fit["relative_l2"]
-    return s
+    fit_dir = os.path.join(out, "fit")
+    shutil.rmtree(fit_dir, ignore_errors=True)
+    run([UMBRA, "fit", xml, "--measured", measured, "--truth", "--init", "auto", "-q",
+         "-o", fit_dir])
+    fit = read_toml(os.path.join(fit_dir, "summary.toml"))
+    s = umbra_recon(xml, out, scan, ["--mesh", os.path.join(fit_dir, "mesh.obj")])
+    s.update(seconds=fit["seconds"], relative_l2=fit["relative_l2"], init=fit["init"],
+             unsupported_faces=fit.get("unsupported_faces", 0), _dir=out)
+    found = {"umbra fit": s}
+    for st in fit.get("starts", []):
+        d = os.path.join(out, f"start-{st['init']}")
+        v = umbra_recon(xml, d, scan,
+                        ["--mesh", os.path.join(fit_dir, f"start-{st['init']}", "mesh.obj")])
+        v.update(seconds=st["seconds"], relative_l2=st["relative_l2"], _dir=d)
+        found[f"umbra fit ({st['init']} start)"] = v
+    return found
 
 
 def truth_depth(xml, out, scan, name):
@@ -146,8 +158,10 @@ def run_case(gt_dir, out, name, capture, noise, methods, scan, log=print):
         t0 = time.time()
         try:
             kind, method = m.split(" ")
-            if m in FITS:
-                s = umbra_fit(xml, measured, d, scan, "lct" if m == "umbra fit-lct" else "plane")
+            if m == "umbra fit":
+                found = umbra_fit(xml, measured, d, scan)
+                s = found.pop("umbra fit")
+                results.update(found)
             elif kind == "umbra":
                 s = umbra_recon(xml, d, scan, ["--measured", measured, "--method", method])
             else:
@@ -162,6 +176,7 @@ def run_case(gt_dir, out, name, capture, noise, methods, scan, log=print):
             f"{sc.get('depth_error_p90_mm', float('nan')):.2f} mm, completeness "
             f"{100 * sc.get('completeness', float('nan')):.0f} %, {s['seconds']:.1f} s "
             f"({time.time() - t0:.0f} s wall)")
+        s.setdefault("_dir", d)
         results[m] = s
     results["_truth_depth"] = truth_depth(xml, case_out, scan, name).tolist()
     with open(os.path.join(case_out, "results.json"), "w") as f:
@@ -183,7 +198,7 @@ def picture(path, title, results, methods):
     fig, axes = plt.subplots(1, len(shown), figsize=(2.1 * len(shown), 2.6))
     for ax, (m, d) in zip(np.atleast_1d(axes), shown):
         im = ax.imshow(d[::-1, ::-1], vmin=lo, vmax=hi, cmap="viridis")
-        label = m
+        label = m.replace(" (", "\n(")
         if m != "truth":
             label += f"\n{results[m]['score']['seen_chamfer_mm']:.1f} mm"
         ax.set_title(label, fontsize=8)
@@ -247,7 +262,6 @@ def main(argv=None):
     ap.add_argument("--docs", default=os.path.join(ROOT, "docs"))
     args = ap.parse_args(argv)
     methods = args.methods.split(",")
-    all_results = {}
     for name in args.scenes.split(","):
         for capture in args.captures.split(","):
             if not os.path.exists(os.path.join(args.gt, f"{name}-{capture}", "target_poisson.npy")):
@@ -255,21 +269,30 @@ def main(argv=None):
             for noise in args.noise.split(","):
                 case = f"{name}-{capture}-{noise}"
                 print(case, flush=True)
-                res = run_case(args.gt, args.out, name, capture, noise, methods, args.scan)
-                for m in methods:
-                    if m in res and "score" in res[m]:
-                        res[m]["_dir"] = os.path.join(args.out, case, m.replace(" ", "_"))
-                all_results[case] = res
-                if args.docs:
-                    os.makedirs(os.path.join(args.docs, "baselines"), exist_ok=True)
-                    picture(os.path.join(args.docs, "baselines", f"{case}.png"), case, res, methods)
-    if args.docs:
-        with open(os.path.join(args.docs, "baselines", "ground_truth.md"), "w") as f:
-            f.write("<!-- generated by python/studies/baselines.py; do not edit -->\n")
-            f.write(f"Seen Chamfer (mm) per method; scan {args.scan} x {args.scan}; grid: the scan's "
-                    f"columns, depths {DEPTHS[0]}-{DEPTHS[1]} m in {1e3 * DEPTH_STEP:.0f} mm; "
-                    f"threshold {THRESHOLD}.\n\n")
-            f.write(table(all_results, methods))
+                run_case(args.gt, args.out, name, capture, noise, methods, args.scan)
+    if not args.docs:
+        return
+    # The table and the pictures: every case with results in --out (this run's and
+    # earlier runs'), in the study's order, so that cases run apart make one table.
+    all_results = {}
+    for name in gt.SCENES:
+        for capture in ("confocal", "single"):
+            for noise in ("clean", "poisson"):
+                case = f"{name}-{capture}-{noise}"
+                path = os.path.join(args.out, case, "results.json")
+                if os.path.exists(path):
+                    with open(path) as f:
+                        all_results[case] = json.load(f)
+    columns = [m for m in ALL_METHODS if m != "umbra fit"] + list(FITS)
+    os.makedirs(os.path.join(args.docs, "baselines"), exist_ok=True)
+    for case, res in all_results.items():
+        picture(os.path.join(args.docs, "baselines", f"{case}.png"), case, res, columns)
+    with open(os.path.join(args.docs, "baselines", "ground_truth.md"), "w") as f:
+        f.write("<!-- generated by python/studies/baselines.py; do not edit -->\n")
+        f.write(f"Seen Chamfer (mm) per method; scan {args.scan} x {args.scan}; grid: the scan's "
+                f"columns, depths {DEPTHS[0]}-{DEPTHS[1]} m in {1e3 * DEPTH_STEP:.0f} mm; "
+                f"threshold {THRESHOLD}.\n\n")
+        f.write(table(all_results, columns))
 
 
 if __name__ == "__main__":

@@ -1,10 +1,11 @@
 """Issue 20's ground-truth study, small (docs/BASELINES.md): the tilted plate rendered by
 mitransient (not by Umbra) at 16 x 16 confocal scan points; Umbra's LCT and filtered
-backprojection, y-tal's filtered backprojection, and Umbra's fit from a plane (y-tal's f-k
-is left out: on mitransient's captures its surface lands beside the truth, an open problem
-of the runner, docs/BASELINES.md), each turned into a surface and scored against the known plate the same way
-(python/studies/baselines.py). The fit's seen Chamfer must be below every baseline's, and
-every method must have found the plate (completeness > 0).
+backprojection, y-tal's filtered backprojection, and Umbra's fit (`--init auto`: from a
+plane and from the LCT's depth map, the lower loss kept), each turned into a surface and
+scored against the known plate the same way (python/studies/baselines.py). y-tal's f-k is
+left out: on a plate turned 35 degrees it aliases laterally and finds under a tenth of it
+even with its time axis binned (notes/ytal-recon.md). The fit's seen Chamfer must be below
+every baseline's, and every method must have found the plate (completeness > 0).
 
     .venv/bin/python -m pytest -q -s python/tests/test_baselines.py
 """

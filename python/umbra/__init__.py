@@ -168,16 +168,22 @@ def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
     exception it raises stops the fit and propagates. Ctrl-C stops it at the end of the
     iteration (KeyboardInterrupt; ``resume=True`` continues from the checkpoint).
     ``boundary_terms``: the visibility boundary terms in the fit's gradients (default: the
-    scene's ``render.boundary_terms``, True; see :func:`grad`).
+    scene's ``render.boundary_terms``, True; see :func:`grad`). ``init``: ``plane``,
+    ``sphere``, ``scene``, ``backprojection``, ``lct`` (confocal) or ``auto`` (confocal:
+    fits from a plane and from the LCT's depth map, keeps the lower loss, the LCT start
+    on a tie within 1 %; other captures: a plane).
 
     Returns a dict: ``vertices`` (N, 3) float64 and ``triangles`` (F, 3) uint32, the
-    fitted surface (faces fitted dark dropped, as mesh.obj); ``full_mesh`` (every face,
+    fitted surface (faces fitted dark, and faces no measurement lights and sees, dropped,
+    as mesh.obj; ``unsupported_faces`` counts the latter); ``full_mesh`` (every face,
     with ``vertex_albedo``); ``history`` (numpy arrays ``iteration``, ``stage``, ``loss``
     (total), ``data_loss``, ``smoothness``); ``final_loss`` (``‖sH + b − M‖² / ‖M‖²`` at
     full resolution) and ``relative_l2``; ``scale``, ``background``, ``time_offset``;
     ``render`` (the fitted transient ``sH + b``, float32, the measurement's layout) and
     ``measured`` (the measurement as fitted); ``chamfer`` (mm, with a truth) or None;
-    ``photon_noise_floor``; ``rejected_steps``; ``seconds``; ``files``."""
+    ``photon_noise_floor``; ``rejected_steps``; ``seconds``; ``files``; ``init`` (the
+    start used, ``auto: plane`` or ``auto: lct`` for ``auto``) and ``starts`` (``auto``:
+    each start's final loss)."""
     toml_text = None
     if schedule is not None:
         if isinstance(schedule, (str, os.PathLike)):

@@ -12,6 +12,8 @@
 //!   data's first returns imply);
 //! - [`request`]: a fit as the CLI and Python ask for it (measurement, defaults,
 //!   truth), the one entry point of both;
+//! - [`support`]: which fitted faces some measurement lights and sees (the rest are
+//!   left out of `mesh.obj`);
 //! - [`run`]: the whole fit with its outputs (mesh, loss curve, transients side by side,
 //!   checkpoints).
 
@@ -25,6 +27,7 @@ pub mod request;
 pub mod resolution;
 pub mod run;
 pub mod score;
+pub mod support;
 pub mod time_offset;
 
 pub use intensity::{intensity_l2, Background, Intensity, IntensityModel};

@@ -15,7 +15,7 @@ use super::resolution::{at_resolution, ScanReduce};
 use super::run::{default_schedule, fit, FitConfig, FitReport, Init};
 use super::{Background, IntensityModel};
 use crate::error::{Error, Result};
-use crate::scene::{Model, Reflectance, Scene};
+use crate::scene::{CaptureType, Model, Reflectance, Scene};
 use optim::checkpoint::write_atomic;
 use optim::fit::Progress;
 use optim::{Mesh, Schedule};
@@ -64,7 +64,8 @@ pub struct FitRequest {
     /// Output directory: mesh.obj, mesh_all.obj, loss.csv, loss.png, transients.png,
     /// reconstruction.png, summary.toml, checkpoint/.
     pub output: PathBuf,
-    /// plane, sphere, scene (the scene's hidden objects) or backprojection.
+    /// plane, sphere, scene (the scene's hidden objects), backprojection, lct, or auto
+    /// (confocal: fits from a plane and from the LCT, keeps the lower loss; else a plane).
     pub init: String,
     /// The stages (default [`default_schedule`]).
     pub schedule: Option<Schedule>,
@@ -177,7 +178,13 @@ pub struct Summary {
     pub vertices: usize,
     pub faces: usize,
     pub rejected_steps: u64,
+    /// Faces left out of mesh.obj because no measurement lights and sees them
+    /// (`fit::support`; the dark ones are not counted).
+    pub unsupported_faces: usize,
+    /// The start used (`auto: plane` or `auto: lct` when `--init auto` chose).
     pub init: String,
+    /// `--init auto`: every start's final loss and time (each fit is in `start-NAME/`).
+    pub starts: Vec<StartSummary>,
     /// For photon-count data: the relative L2 Poisson noise alone gives (the best a
     /// fit can reach at this resolution).
     pub photon_noise_floor: Option<f64>,
@@ -185,6 +192,49 @@ pub struct Summary {
     /// With a known truth: the baselines study's score (`fit::score`), the same numbers
     /// `umbra recon --truth` gives a reconstruction's surface.
     pub score: Option<super::score::SurfaceScore>,
+}
+
+/// One start of an `--init auto` fit.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct StartSummary {
+    pub init: String,
+    pub final_loss: f64,
+    pub relative_l2: f64,
+    pub seconds: f64,
+}
+
+/// `--init auto` keeps the LCT start unless the plane's loss is lower by more than this
+/// fraction: the LCT start is itself a reconstruction of the data, and losses this close
+/// are both at the data's noise (docs/BASELINES.md: on the tilted plate with Poisson
+/// noise the two differ by 0.03 %, and the LCT start's surface is 2.8x closer to the
+/// truth; where the plane wins, on the sphere, by 6-15 %).
+pub const AUTO_LOSS_MARGIN: f64 = 0.01;
+
+/// Index of the start `--init auto` keeps among final losses in the order plane, lct.
+fn choose_start(losses: &[f64]) -> usize {
+    match losses {
+        [plane, lct] if *plane < lct * (1.0 - AUTO_LOSS_MARGIN) => 0,
+        [_, _] => 1,
+        _ => 0,
+    }
+}
+
+/// `OUTDIR/start-NAME`: where `--init auto` fits from start `NAME`.
+fn start_dir(output: &Path, name: &str) -> PathBuf {
+    output.join(format!("start-{name}"))
+}
+
+/// Copies the chosen start's outputs into `out` (atomically); their new paths.
+fn copy_outputs(files: &[PathBuf], out: &Path) -> Result<Vec<PathBuf>> {
+    files
+        .iter()
+        .map(|f| {
+            let to = out.join(f.file_name().unwrap_or_default());
+            let bytes = std::fs::read(f).map_err(|e| Error::io(f, e))?;
+            write_atomic(&to, &bytes).map_err(|e| Error::io(&to, e))?;
+            Ok(to)
+        })
+        .collect()
 }
 
 /// What [`run`] returns.
@@ -254,7 +304,14 @@ pub fn run(
                 req.model
             ))
         })?;
-    let checkpoint_dir = req.output.join("checkpoint");
+    // `--init auto` fits from each start in its own folder (`start-plane`, `start-lct`);
+    // the first one's checkpoint is the one a resume needs.
+    let auto = req.init == "auto";
+    let checkpoint_dir = if auto {
+        start_dir(&req.output, "plane").join("checkpoint")
+    } else {
+        req.output.join("checkpoint")
+    };
     // A resume fails early on a checkpoint that is not there or damaged (before any
     // target is rendered); what it was written for is compared in the fit.
     let resumed = if req.resume {
@@ -344,15 +401,29 @@ pub fn run(
     let ignore_before_opl = req.ignore_before.or(lct_default);
     let noise_floor =
         counts.then(|| photon_noise_floor(&scene, &measured, bin.1, ignore_before_opl));
-    let init = match req.init.as_str() {
-        "plane" => Init::Plane,
-        "sphere" => Init::Sphere,
-        "scene" => Init::Mesh(to_mesh(&scene, &format!("{} scene", n("init")))?),
-        "backprojection" => Init::Backprojection,
-        "lct" => Init::Lct,
+    let starts: Vec<(&str, Init)> = match req.init.as_str() {
+        "plane" => vec![("plane", Init::Plane)],
+        "sphere" => vec![("sphere", Init::Sphere)],
+        "scene" => vec![(
+            "scene",
+            Init::Mesh(to_mesh(&scene, &format!("{} scene", n("init")))?),
+        )],
+        "backprojection" => vec![("backprojection", Init::Backprojection)],
+        "lct" => vec![("lct", Init::Lct)],
+        "auto" if scene.capture == CaptureType::Confocal => {
+            vec![("plane", Init::Plane), ("lct", Init::Lct)]
+        }
+        "auto" => {
+            log(&format!(
+                "{} auto: a plane only (the LCT start needs a confocal capture, this one is {})",
+                n("init"),
+                scene.capture.name()
+            ));
+            vec![("plane", Init::Plane)]
+        }
         other => {
             return Err(Error::Invalid(format!(
-                "{}: '{other}' is not one of plane, sphere, scene, backprojection, lct",
+                "{}: '{other}' is not one of plane, sphere, scene, backprojection, lct, auto",
                 n("init")
             )))
         }
@@ -461,9 +532,9 @@ pub fn run(
     } else {
         Background::Constant
     });
-    let cfg = FitConfig {
+    let mut cfg = FitConfig {
         schedule,
-        init,
+        init: Init::Plane,
         model,
         spp: req.spp.max(1),
         intensity: IntensityModel {
@@ -479,7 +550,49 @@ pub fn run(
         time_offset_max_opl,
         reflectance,
     };
-    let report = fit(&scene, &measured, &cfg, &req.output, progress)?;
+    let mut fits = Vec::new();
+    for (name, init) in starts {
+        let dir = if auto {
+            start_dir(&req.output, name)
+        } else {
+            req.output.clone()
+        };
+        cfg.init = init;
+        // A start an interrupted `auto` fit never reached has no checkpoint: it starts.
+        cfg.resume = req.resume && dir.join("checkpoint").join("stage.bin").exists();
+        if auto {
+            log(&format!(
+                "{} auto: fitting from the {name} start ({})",
+                n("init"),
+                dir.display()
+            ));
+        }
+        fits.push((name, fit(&scene, &measured, &cfg, &dir, progress.clone())?));
+    }
+    let starts_summary: Vec<StartSummary> = fits
+        .iter()
+        .map(|(name, r)| StartSummary {
+            init: name.to_string(),
+            final_loss: r.final_loss,
+            relative_l2: r.final_loss.sqrt(),
+            seconds: r.seconds,
+        })
+        .collect();
+    let chosen = choose_start(&fits.iter().map(|(_, r)| r.final_loss).collect::<Vec<_>>());
+    let (chosen_name, mut report) = fits.swap_remove(chosen);
+    if auto {
+        report.files = copy_outputs(&report.files, &req.output)?;
+        report.seconds = starts_summary.iter().map(|s| s.seconds).sum();
+        log(&format!(
+            "{} auto: kept the {chosen_name} start ({})",
+            n("init"),
+            starts_summary
+                .iter()
+                .map(|s| format!("{}: relative L2 {:.4}", s.init, s.relative_l2))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+    }
     // A fit that ends where the surface returns nothing it can use has failed, whatever
     // its exit status: say so rather than report a mesh as if it were one.
     let no_signal =
@@ -489,6 +602,12 @@ pub fn run(
             "warning: the fitted surface returns no light the fit can use (relative L2 {:.3}, scale {:.3e}): the fit failed; a step size (lr) too large for the scene throws the mesh out of view (see loss.csv)",
             report.final_loss.sqrt(),
             report.intensity.scale
+        ));
+    }
+    if report.unsupported_faces > 0 {
+        log(&format!(
+            "{} faces left out of mesh.obj: no measurement lights and sees them (in the fitted surface's own shadow), so the data say nothing about them (mesh_all.obj keeps them)",
+            report.unsupported_faces
         ));
     }
     let mut summary = Summary {
@@ -502,7 +621,13 @@ pub fn run(
         vertices: report.mesh.vertices.len(),
         faces: report.mesh.faces.len(),
         rejected_steps: report.rejected_steps,
-        init: req.init.clone(),
+        unsupported_faces: report.unsupported_faces,
+        init: if auto {
+            format!("auto: {chosen_name}")
+        } else {
+            req.init.clone()
+        },
+        starts: if auto { starts_summary } else { Vec::new() },
         photon_noise_floor: noise_floor,
         chamfer: None,
         score: None,
@@ -538,4 +663,17 @@ pub fn run(
         measured,
         shape: scene.output_shape(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn auto_keeps_the_lct_start_unless_the_plane_is_clearly_lower() {
+        assert_eq!(choose_start(&[0.0228943, 0.0229015]), 1); // a tie: the LCT's
+        assert_eq!(choose_start(&[0.0290, 0.0288]), 1);
+        assert_eq!(choose_start(&[0.0175, 0.0196]), 0); // 11 % lower: the plane's
+        assert_eq!(choose_start(&[0.5]), 0); // one start
+    }
 }

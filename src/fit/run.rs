@@ -1,7 +1,8 @@
 //! A whole fit: the initial mesh, the schedule's stages through `optim::fit` with
 //! Umbra's renderer as the objective, and the outputs in the output directory:
 //!
-//! - `mesh.obj`: the fitted surface (world space, m; faces fitted dark dropped), and
+//! - `mesh.obj`: the fitted surface (world space, m; faces fitted dark, and faces no
+//!   measurement lights and sees, dropped), and
 //!   `mesh_all.obj` with every face and its albedo as vertex colour;
 //! - `loss.csv` and `loss.png`: the loss per iteration (data term and total), stage
 //!   boundaries marked;
@@ -16,10 +17,12 @@
 
 use super::init::{depth_from_data, plane, sphere};
 use super::intensity::{Intensity, IntensityModel};
-use super::objective::{first_fitted_bin, zero_leading_bins, UmbraObjective};
+use super::objective::{first_fitted_bin, hidden_object, zero_leading_bins, UmbraObjective};
 use super::reconstruction::{backprojection_mesh, write_reconstruction_png};
 use super::resolution::{at_resolution, ScanReduce};
+use super::support::supported_faces;
 use crate::error::{Error, Result};
+use crate::geometry::accel::SceneGeometry;
 use crate::io::plot::{log_chart, side_by_side, Series};
 use crate::scene::{CaptureType, Model, Scene};
 use crate::transport::RenderOptions;
@@ -80,7 +83,8 @@ pub struct FitConfig {
 #[derive(Clone, Debug)]
 pub struct FitReport {
     /// The fitted surface: [`FitReport::full_mesh`] without faces whose fitted albedo
-    /// is below [`DARK`] of the brightest.
+    /// is below [`DARK`] of the brightest and without faces no measurement lights and
+    /// sees ([`super::support`]).
     pub mesh: Mesh,
     pub full_mesh: Mesh,
     pub history: Vec<LossRecord>,
@@ -93,6 +97,9 @@ pub struct FitReport {
     /// The fitted time offset (OPL, m; 0 unless searched).
     pub time_offset_opl: f64,
     pub rejected_steps: u64,
+    /// Faces left out of `mesh` because no measurement lights and sees them
+    /// ([`super::support`]), besides the dark ones.
+    pub unsupported_faces: usize,
     /// The final mesh's fitted transient at full resolution, `s K H + b` (scale,
     /// detector response and background applied; bins left out of the fit are zero), in
     /// the measurement's layout.
@@ -346,9 +353,28 @@ pub fn fit(
         other => Error::Invalid(format!("fit: {other}")),
     })?;
     let mut files = Vec::new();
-    // With fitted albedo, faces the data drove dark are not surface: mesh.obj drops
-    // them, mesh_all.obj keeps everything.
-    let surface = outcome.mesh.without_dark_faces(DARK);
+    // Faces the data drove dark, and faces no measurement lights and sees (`support`),
+    // are not surface the data support: mesh.obj drops them, mesh_all.obj keeps all.
+    let mut fitted = base.clone();
+    fitted.objects = vec![hidden_object(
+        &outcome.mesh,
+        cfg.albedo,
+        cfg.two_sided,
+        cfg.reflectance,
+    )];
+    let supported = supported_faces(&fitted, &SceneGeometry::build(&fitted));
+    let bright = outcome.mesh.bright_faces(DARK);
+    let unsupported_faces = supported
+        .iter()
+        .zip(&bright)
+        .filter(|(s, b)| **b && !**s)
+        .count();
+    let keep: Vec<bool> = supported
+        .iter()
+        .zip(&bright)
+        .map(|(s, b)| *s && *b)
+        .collect();
+    let surface = outcome.mesh.with_faces(&keep);
     for (name, mesh) in [("mesh.obj", &surface), ("mesh_all.obj", &outcome.mesh)] {
         let path = out.join(name);
         write_atomic(&path, mesh.to_obj().as_bytes()).map_err(|e| Error::io(&path, e))?;
@@ -393,6 +419,7 @@ pub fn fit(
         intensity,
         time_offset_opl,
         rejected_steps: outcome.rejected_steps,
+        unsupported_faces,
         files,
     })
 }

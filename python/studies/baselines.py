@@ -8,11 +8,12 @@ Methods, each on the same measurement and the same voxel grid (the scan's column
   umbra bp / fbp / lct / pf   `umbra recon --method M` (LCT confocal only)
   y-tal bp / fbp / fk          y-tal 0.20.0 (ytal_recon.py in .venv-ytal; fk confocal only),
                                its volume made a surface and scored by `umbra recon --volume`
-  umbra fit                    `umbra fit --init auto` (default schedule): confocal, a fit
-                               from a plane and one from the LCT's depth map, the lower loss
-                               kept (the LCT's within 1 %); single capture, a plane. Its
+  umbra fit                    `umbra fit --init auto` (default schedule): a fit from a
+                               plane and one from a reconstruction's depth map (the LCT's,
+                               confocal; the falloff-weighted backprojection's, single), the
+                               lower loss kept (the reconstruction's within 1 %). Its
                                mesh.obj scored by `umbra recon --mesh`, and each start's as
-                               "umbra fit (plane start)" and "umbra fit (lct start)"
+                               "umbra fit (NAME start)"
 A volume becomes a surface the usual way: per-column argmax depth where the column's peak is
 at least 0.3 of the volume's maximum, triangulated as a height field. Every surface gets the
 same score (`umbra::fit::score`): seen Chamfer, depth error over the truth's columns (mean,
@@ -50,13 +51,15 @@ YTAL_RECON = os.path.join(HERE, "ytal_recon.py")
 UMBRA_METHODS = ("bp", "fbp", "lct", "pf")
 YTAL_METHODS = ("bp", "fbp", "fk")
 CONFOCAL_ONLY = {"umbra lct", "y-tal fk"}
-STARTS = ("plane", "lct")         # the starts of --init auto, each scored too
+STARTS = ("plane", "lct", "backprojection")   # the starts of --init auto, each scored too
 FITS = ("umbra fit",) + tuple(f"umbra fit ({s} start)" for s in STARTS)
 ALL_METHODS = ([f"umbra {m}" for m in UMBRA_METHODS] + [f"y-tal {m}" for m in YTAL_METHODS]
                + ["umbra fit"])
 DEPTHS = (0.4, 1.6)
 DEPTH_STEP = 0.002
 THRESHOLD = 0.3
+NO_SURFACE = "no 2 x 2 block"   # umbra recon: too few columns above the threshold
+REUSE = False   # --reuse: keep fits and y-tal volumes already in --out, score them again
 
 
 def run(cmd, **kw):
@@ -99,7 +102,8 @@ def ytal_volume(xml, measured, method, out, scan, capture_h5):
     vol, timing = os.path.join(out, "ytal_volume.npy"), os.path.join(out, "ytal_timing.json")
     # y-tal's bp and fbp build every index array at once (about 27 GB here): in chunks.
     chunks = ["--downscale", "32"] if method in ("bp", "fbp") else []
-    run([YTAL_PYTHON, YTAL_RECON, capture_h5, gpath, method, vol, "--json", timing, *chunks])
+    if not (REUSE and os.path.exists(vol) and os.path.exists(timing)):
+        run([YTAL_PYTHON, YTAL_RECON, capture_h5, gpath, method, vol, "--json", timing, *chunks])
     s = umbra_recon(xml, out, scan, ["--volume", vol])
     with open(timing) as f:
         s["seconds"] = json.load(f)["seconds"]
@@ -111,9 +115,10 @@ def umbra_fit(xml, measured, out, scan):
     start's mesh (confocal: start-plane/, start-lct/) too. {variant: summary}."""
     os.makedirs(out, exist_ok=True)
     fit_dir = os.path.join(out, "fit")
-    shutil.rmtree(fit_dir, ignore_errors=True)
-    run([UMBRA, "fit", xml, "--measured", measured, "--truth", "--init", "auto", "-q",
-         "-o", fit_dir])
+    if not (REUSE and os.path.exists(os.path.join(fit_dir, "summary.toml"))):
+        shutil.rmtree(fit_dir, ignore_errors=True)
+        run([UMBRA, "fit", xml, "--measured", measured, "--truth", "--init", "auto", "-q",
+             "-o", fit_dir])
     fit = read_toml(os.path.join(fit_dir, "summary.toml"))
     s = umbra_recon(xml, out, scan, ["--mesh", os.path.join(fit_dir, "mesh.obj")])
     s.update(seconds=fit["seconds"], relative_l2=fit["relative_l2"], init=fit["init"],
@@ -223,7 +228,7 @@ def table(all_results, methods):
             if s is None:
                 cells.append("n/a")
             elif "error" in s:
-                cells.append("failed")
+                cells.append("no surface" if NO_SURFACE in s["error"] else "failed")
             else:
                 c = s["score"]["seen_chamfer_mm"]
                 cells.append(f"{c:.2f}")
@@ -260,7 +265,11 @@ def main(argv=None):
     ap.add_argument("--scan", type=int, default=gt.SCAN)
     ap.add_argument("--spp", type=int, default=gt.SPP)
     ap.add_argument("--docs", default=os.path.join(ROOT, "docs"))
+    ap.add_argument("--reuse", action="store_true",
+                    help="keep the fits and y-tal volumes already in --out and score them again")
     args = ap.parse_args(argv)
+    global REUSE
+    REUSE = args.reuse
     methods = args.methods.split(",")
     for name in args.scenes.split(","):
         for capture in args.captures.split(","):

@@ -12,10 +12,14 @@
 //! to the fitted one. [`chamfer_seen`] therefore measures each direction over the points
 //! of its source surface that face, and are unoccluded from, at least one of nine scan
 //! points (the scan rectangle's corners, edge midpoints and centre), against the whole
-//! of the other surface.
+//! of the other surface. With one laser spot (single capture) a point must also face,
+//! and be unoccluded from, the spot: surface the laser does not light returns nothing
+//! either (the side of a sphere past the spot's terminator, a surface's continuation in
+//! its own shadow); confocal and exhaustive captures light from the scan points
+//! themselves.
 
 use crate::geometry::SceneGeometry;
-use crate::scene::Scene;
+use crate::scene::{CaptureType, Scene};
 use glam::{DVec3, Vec3};
 use optim::Mesh;
 use rayon::prelude::*;
@@ -117,8 +121,8 @@ pub fn chamfer(fit: &Mesh, truth: &Mesh, n: usize) -> Chamfer {
 }
 
 /// The points of `n` samples on `mesh` that face, and are unoccluded from, one of the
-/// nine viewpoints on `scene`'s scan rectangle, with `mesh` as the scene's only hidden
-/// object; and their share of the samples.
+/// nine viewpoints on `scene`'s scan rectangle and, for a single capture, the laser spot,
+/// with `mesh` as the scene's only hidden object; and their share of the samples.
 pub(crate) fn seen_samples(
     mesh: &Mesh,
     scene: &Scene,
@@ -149,10 +153,12 @@ pub(crate) fn seen_samples(
             let [a, b, c] = tri(mesh, *f);
             let normal = (b - a).cross(c - a).normalize_or_zero().as_vec3();
             let p = p.as_vec3();
-            viewpoints.iter().any(|&x_s| {
-                let facing = normal.dot(x_s - p);
-                (facing > 0.0 || (two_sided && facing < 0.0)) && !geometry.occluded(p, x_s)
-            })
+            let clear = |x: Vec3| {
+                let facing = normal.dot(x - p);
+                (facing > 0.0 || (two_sided && facing < 0.0)) && !geometry.occluded(p, x)
+            };
+            let lit = scene.capture != CaptureType::Single || clear(scene.laser.target);
+            lit && viewpoints.iter().any(|&x_s| clear(x_s))
         })
         .map(|(p, _)| *p)
         .collect();
@@ -202,6 +208,37 @@ mod tests {
         let c = chamfer(&square(0.0), &square(0.01), 500);
         assert!((c.symmetric - 0.01).abs() < 1e-12, "{c:?}");
         assert!(chamfer(&square(0.0), &square(0.0), 500).symmetric < 1e-12);
+    }
+
+    /// A small plate straight behind a larger one, on the axis through the wall's centre:
+    /// the scan's corners see it past the front plate, so confocal it is seen; a single
+    /// capture's spot at the centre is shadowed from it, so it is not.
+    #[test]
+    fn single_capture_counts_only_what_the_spot_lights() {
+        let mut scene = crate::scene::default::default_scene().unwrap();
+        scene.laser.target = Vec3::ZERO;
+        let plate = |z: f64, h: f64| {
+            Mesh::new(
+                vec![[-h, -h, z], [h, -h, z], [h, h, z], [-h, h, z]],
+                vec![[0, 1, 2], [0, 2, 3]],
+            )
+        };
+        let (front, back) = (plate(0.5, 0.1), plate(1.0, 0.05));
+        let mut both = front.clone();
+        let base = both.vertices.len() as u32;
+        both.vertices.extend(back.vertices.iter());
+        both.faces.extend(back.faces.iter().map(|f| f.map(|i| i + base)));
+        let share_behind = |capture| {
+            let scene = Scene {
+                capture,
+                ..scene.clone()
+            };
+            let (seen, _) = seen_samples(&both, &scene, true, 4000);
+            let behind = sample_surface(&both, 4000).iter().filter(|p| p.z > 0.75).count();
+            seen.iter().filter(|p| p.z > 0.75).count() as f64 / behind as f64
+        };
+        assert!(share_behind(CaptureType::Confocal) > 0.5);
+        assert_eq!(share_behind(CaptureType::Single), 0.0);
     }
 
     #[test]

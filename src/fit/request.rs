@@ -65,7 +65,8 @@ pub struct FitRequest {
     /// reconstruction.png, summary.toml, checkpoint/.
     pub output: PathBuf,
     /// plane, sphere, scene (the scene's hidden objects), backprojection, lct, or auto
-    /// (confocal: fits from a plane and from the LCT, keeps the lower loss; else a plane).
+    /// (fits from a plane and from the LCT, confocal, or the backprojection, otherwise;
+    /// keeps the lower loss, the reconstruction's within [`AUTO_LOSS_MARGIN`]).
     pub init: String,
     /// The stages (default [`default_schedule`]).
     pub schedule: Option<Schedule>,
@@ -181,9 +182,10 @@ pub struct Summary {
     /// Faces left out of mesh.obj because no measurement lights and sees them
     /// (`fit::support`; the dark ones are not counted).
     pub unsupported_faces: usize,
-    /// The start used (`auto: plane` or `auto: lct` when `--init auto` chose).
+    /// The start used (`auto: plane`, `auto: lct` or `auto: backprojection` when
+    /// `--init auto` chose).
     pub init: String,
-    /// `--init auto`: every start's final loss and time (each fit is in `start-NAME/`).
+    /// `--init auto`: both starts' final losses and times (each fit is in `start-NAME/`).
     pub starts: Vec<StartSummary>,
     /// For photon-count data: the relative L2 Poisson noise alone gives (the best a
     /// fit can reach at this resolution).
@@ -203,14 +205,16 @@ pub struct StartSummary {
     pub seconds: f64,
 }
 
-/// `--init auto` keeps the LCT start unless the plane's loss is lower by more than this
-/// fraction: the LCT start is itself a reconstruction of the data, and losses this close
+/// `--init auto` keeps the reconstruction's start (the LCT's, confocal; the
+/// backprojection's, otherwise) unless the plane's loss is lower by more than this
+/// fraction: that start is itself a reconstruction of the data, and losses this close
 /// are both at the data's noise (docs/BASELINES.md: on the tilted plate with Poisson
 /// noise the two differ by 0.03 %, and the LCT start's surface is 2.8x closer to the
 /// truth; where the plane wins, on the sphere, by 6-15 %).
 pub const AUTO_LOSS_MARGIN: f64 = 0.01;
 
-/// Index of the start `--init auto` keeps among final losses in the order plane, lct.
+/// Index of the start `--init auto` keeps among final losses in the order plane,
+/// reconstruction.
 fn choose_start(losses: &[f64]) -> usize {
     match losses {
         [plane, lct] if *plane < lct * (1.0 - AUTO_LOSS_MARGIN) => 0,
@@ -413,14 +417,7 @@ pub fn run(
         "auto" if scene.capture == CaptureType::Confocal => {
             vec![("plane", Init::Plane), ("lct", Init::Lct)]
         }
-        "auto" => {
-            log(&format!(
-                "{} auto: a plane only (the LCT start needs a confocal capture, this one is {})",
-                n("init"),
-                scene.capture.name()
-            ));
-            vec![("plane", Init::Plane)]
-        }
+        "auto" => vec![("plane", Init::Plane), ("backprojection", Init::Backprojection)],
         other => {
             return Err(Error::Invalid(format!(
                 "{}: '{other}' is not one of plane, sphere, scene, backprojection, lct, auto",

@@ -113,9 +113,43 @@ pub struct MeshOptions {
     pub smooth_iterations: usize,
 }
 
+/// Removes quads (by lower-left column) until no two of them touch at a corner only: two
+/// quads meeting diagonally at a column with neither of the other two quads around it
+/// would make that vertex non-manifold (two fans), which the fit's remesher refuses. Of
+/// such a pair, the one further up the scan goes; repeated until none is left.
+fn drop_bowties(quads: &mut Vec<(usize, usize)>, nx: usize, ny: usize) {
+    let mut has = vec![false; nx * ny];
+    for &(ix, iy) in quads.iter() {
+        has[iy * nx + ix] = true;
+    }
+    loop {
+        let mut dropped = false;
+        for y in 1..ny.saturating_sub(1) {
+            for x in 1..nx.saturating_sub(1) {
+                // the four quads around column (x, y): lower-left (x-1, y-1), lower-right
+                // (x, y-1), upper-left (x-1, y), upper-right (x, y)
+                let q = |x: usize, y: usize| has[y * nx + x];
+                let (ll, lr, ul, ur) = (q(x - 1, y - 1), q(x, y - 1), q(x - 1, y), q(x, y));
+                if ll && ur && !lr && !ul {
+                    has[y * nx + x] = false;
+                    dropped = true;
+                } else if lr && ul && !ll && !ur {
+                    has[y * nx + x - 1] = false;
+                    dropped = true;
+                }
+            }
+        }
+        if !dropped {
+            break;
+        }
+    }
+    quads.retain(|&(ix, iy)| has[iy * nx + ix]);
+}
+
 /// A wall-facing height field over the non-empty columns of `dm` (see the module doc),
 /// in world space through `frame`. `grid` is the grid the depth map came from. Errors if
-/// no 2 x 2 block of neighbouring columns is non-empty.
+/// no 2 x 2 block of neighbouring columns is non-empty; blocks that touch another at a
+/// corner only are dropped ([`drop_bowties`]), so the mesh is manifold.
 pub fn depth_map_mesh(
     dm: &DepthMap,
     grid: &VoxelGrid,
@@ -141,6 +175,7 @@ pub fn depth_map_mesh(
             }
         }
     }
+    drop_bowties(&mut quads, nx, ny);
     if quads.is_empty() {
         return Err(Error::Invalid(format!(
             "depth-map mesh: no 2 x 2 block of neighbouring columns is above the threshold ({} of {} columns are): lower the threshold or check the reconstruction",
@@ -256,5 +291,32 @@ pub fn surface_depth_map(
         intensity,
         nx,
         ny,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Quads (by lower-left column) meeting at one corner only, as the letter's
+    /// backprojection start had: one of the pair goes, so every vertex has one fan of
+    /// faces; three quads around a vertex are one fan and stay.
+    #[test]
+    fn quads_touching_at_a_corner_only_are_not_kept_both() {
+        let (nx, ny) = (5, 5);
+        for (pair, kept) in [
+            (vec![(0, 0), (1, 1)], vec![(0, 0)]),
+            (vec![(1, 0), (0, 1)], vec![(1, 0)]),
+            (vec![(0, 0), (1, 0), (1, 1)], vec![(0, 0), (1, 0), (1, 1)]),
+            (vec![(0, 0), (2, 2)], vec![(0, 0), (2, 2)]),
+        ] {
+            let mut quads = pair.clone();
+            drop_bowties(&mut quads, nx, ny);
+            assert_eq!(quads, kept, "{pair:?}");
+        }
+        // a diagonal chain: each removal can expose no new corner-only contact
+        let mut chain: Vec<_> = (0..4).map(|i| (i, i)).collect();
+        drop_bowties(&mut chain, nx, ny);
+        assert_eq!(chain, vec![(0, 0), (2, 2)]);
     }
 }

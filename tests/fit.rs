@@ -326,10 +326,10 @@ fn cli_fit_runs_resumes_and_reports_bad_input() {
     let _ = std::fs::remove_dir_all(&d);
 }
 
-/// `--init auto` on the (confocal) default scene: a fit from each start in its own
-/// folder, the summary listing both losses, the kept start the one the rule picks (the
-/// LCT's unless the plane's loss is lower by more than 1 %), its outputs copied to the
-/// top (mesh.obj byte for byte), and a `--resume` of the finished pair ending the same.
+/// `--init auto` on the (confocal) default scene: a fit from each start (plane, sphere,
+/// LCT) in its own folder, the summary listing their losses, the kept start the one the
+/// rule picks (the last within 1 % of the lowest loss), its outputs copied to the top
+/// (mesh.obj byte for byte), and a `--resume` of the finished fits ending the same.
 #[test]
 fn cli_init_auto_fits_both_starts_and_keeps_the_rule_s_choice() {
     let exe = env!("CARGO_BIN_EXE_umbra");
@@ -367,20 +367,24 @@ fn cli_init_auto_fits_both_starts_and_keeps_the_rule_s_choice() {
     let summary: toml::Value =
         toml::from_str(&std::fs::read_to_string(out.join("summary.toml")).unwrap()).unwrap();
     let starts = summary["starts"].as_array().unwrap();
-    let loss = |i: usize| starts[i]["final_loss"].as_float().unwrap();
-    assert_eq!(starts[0]["init"].as_str(), Some("plane"));
-    assert_eq!(starts[1]["init"].as_str(), Some("lct"));
-    let kept = if loss(0) < loss(1) * (1.0 - umbra::fit::request::AUTO_LOSS_MARGIN) {
-        "plane"
-    } else {
-        "lct"
-    };
+    let names: Vec<&str> = starts.iter().map(|s| s["init"].as_str().unwrap()).collect();
+    assert_eq!(names, ["plane", "sphere", "lct"]);
+    let losses: Vec<f64> = starts
+        .iter()
+        .map(|s| s["final_loss"].as_float().unwrap())
+        .collect();
+    let lowest = losses.iter().cloned().fold(f64::INFINITY, f64::min);
+    let margin = umbra::fit::request::AUTO_LOSS_MARGIN;
+    let k = (0..3)
+        .rev()
+        .find(|&i| losses[i] * (1.0 - margin) <= lowest)
+        .unwrap();
+    let kept = names[k];
     assert_eq!(
         summary["init"].as_str(),
         Some(format!("auto: {kept}").as_str())
     );
-    let kept_loss = if kept == "plane" { loss(0) } else { loss(1) };
-    assert_eq!(summary["final_loss"].as_float(), Some(kept_loss));
+    assert_eq!(summary["final_loss"].as_float(), Some(losses[k]));
     let mesh = std::fs::read(out.join("mesh.obj")).unwrap();
     assert_eq!(
         mesh,

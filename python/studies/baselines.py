@@ -51,7 +51,7 @@ YTAL_RECON = os.path.join(HERE, "ytal_recon.py")
 UMBRA_METHODS = ("bp", "fbp", "lct", "pf")
 YTAL_METHODS = ("bp", "fbp", "fk")
 CONFOCAL_ONLY = {"umbra lct", "y-tal fk"}
-STARTS = ("plane", "lct", "backprojection")   # the starts of --init auto, each scored too
+STARTS = ("plane", "sphere", "lct", "backprojection")   # --init auto's starts, each scored
 FITS = ("umbra fit",) + tuple(f"umbra fit ({s} start)" for s in STARTS)
 ALL_METHODS = ([f"umbra {m}" for m in UMBRA_METHODS] + [f"y-tal {m}" for m in YTAL_METHODS]
                + ["umbra fit"])

@@ -170,9 +170,9 @@ def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
     ``boundary_terms``: the visibility boundary terms in the fit's gradients (default: the
     scene's ``render.boundary_terms``, True; see :func:`grad`). ``init``: ``plane``,
     ``sphere``, ``scene``, ``backprojection``, ``lct`` (confocal) or ``auto`` (fits from a
-    plane and from a reconstruction's depth map, the LCT's for confocal captures, the
-    backprojection's otherwise; keeps the lower loss, the reconstruction's on a tie
-    within 1 %).
+    plane, a sphere and a reconstruction's depth map, the LCT's for confocal captures, the
+    backprojection's otherwise; keeps the lowest loss, a later start of the three within
+    1 % of it winning).
 
     Returns a dict: ``vertices`` (N, 3) float64 and ``triangles`` (F, 3) uint32, the
     fitted surface (faces fitted dark, and faces no measurement lights and sees, dropped,
@@ -183,7 +183,7 @@ def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
     ``render`` (the fitted transient ``sH + b``, float32, the measurement's layout) and
     ``measured`` (the measurement as fitted); ``chamfer`` (mm, with a truth) or None;
     ``photon_noise_floor``; ``rejected_steps``; ``seconds``; ``files``; ``init`` (the
-    start used: ``auto: plane``, ``auto: lct`` or ``auto: backprojection`` for ``auto``) and ``starts`` (``auto``:
+    start used, ``auto: NAME`` for ``auto``) and ``starts`` (``auto``:
     each start's final loss)."""
     toml_text = None
     if schedule is not None:

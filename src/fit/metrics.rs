@@ -227,14 +227,18 @@ mod tests {
         let mut both = front.clone();
         let base = both.vertices.len() as u32;
         both.vertices.extend(back.vertices.iter());
-        both.faces.extend(back.faces.iter().map(|f| f.map(|i| i + base)));
+        both.faces
+            .extend(back.faces.iter().map(|f| f.map(|i| i + base)));
         let share_behind = |capture| {
             let scene = Scene {
                 capture,
                 ..scene.clone()
             };
             let (seen, _) = seen_samples(&both, &scene, true, 4000);
-            let behind = sample_surface(&both, 4000).iter().filter(|p| p.z > 0.75).count();
+            let behind = sample_surface(&both, 4000)
+                .iter()
+                .filter(|p| p.z > 0.75)
+                .count();
             seen.iter().filter(|p| p.z > 0.75).count() as f64 / behind as f64
         };
         assert!(share_behind(CaptureType::Confocal) > 0.5);

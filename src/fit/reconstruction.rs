@@ -68,8 +68,13 @@ fn backprojection(
 /// not dimmed below the threshold by the near one: two objects 0.5 m apart in depth both
 /// start (docs/BASELINES.md; unweighted, only the near one did).
 pub fn backprojection_mesh(scene: &Scene, measured: &[f32], first_bin: usize) -> Result<Mesh> {
-    let (volume, depth) =
-        backprojection(scene, measured, first_bin, [32, 32, 64], Falloff::Compensate)?;
+    let (volume, depth) = backprojection(
+        scene,
+        measured,
+        first_bin,
+        [32, 32, 64],
+        Falloff::Compensate,
+    )?;
     let m = depth_map_mesh(
         &depth,
         &volume.grid,

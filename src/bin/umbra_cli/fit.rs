@@ -27,10 +27,10 @@ pub struct FitArgs {
     pub output: PathBuf,
     /// Initial mesh: plane, sphere, scene (the scene's hidden objects), or
     /// backprojection (the height field of a filtered backprojection's depth map), or lct
-    /// (the same of the light-cone transform's; confocal captures), or auto: a fit from a
-    /// plane and one from a reconstruction (the LCT, confocal; the backprojection,
-    /// otherwise), in OUTDIR/start-NAME, the lower loss kept (the reconstruction's unless
-    /// the plane's is lower by more than 1 %).
+    /// (the same of the light-cone transform's; confocal captures), or auto: fits from a
+    /// plane, a sphere and a reconstruction (the LCT, confocal; the backprojection,
+    /// otherwise), each in OUTDIR/start-NAME, the lowest loss kept (a later start within
+    /// 1 % of it wins).
     #[arg(long, default_value = "plane")]
     pub init: String,
     /// Schedule TOML ([[stage]] tables: iters, solver, lr, large_steps, laplacian,

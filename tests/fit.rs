@@ -242,13 +242,10 @@ fn small_recovery_studies_reach_the_seen_surface() {
     }
 }
 
-/// The CLI end to end on the default scene with a tiny schedule: outputs written, a
-/// second run refuses to overwrite the checkpoint, `--resume` of the finished fit
-/// rewrites the outputs, and a missing measurement is an error naming the file.
-#[test]
-fn cli_fit_runs_resumes_and_reports_bad_input() {
-    let exe = env!("CARGO_BIN_EXE_umbra");
-    let d = out_dir("cli");
+/// A fresh test folder `name` with a three-iteration coarse schedule (checkpoints every
+/// two iterations) in it: the folder and the schedule's path.
+fn tiny_schedule(name: &str) -> (PathBuf, PathBuf) {
+    let d = out_dir(name);
     std::fs::create_dir_all(&d).unwrap();
     let config = d.join("schedule.toml");
     std::fs::write(
@@ -256,6 +253,16 @@ fn cli_fit_runs_resumes_and_reports_bad_input() {
         "checkpoint_every = 2\n[[stage]]\niters = 3\nlr = 0.01\nlarge_steps = 10.0\ntime_downsample = 8\nscan_downsample = 4\n",
     )
     .unwrap();
+    (d, config)
+}
+
+/// The CLI end to end on the default scene with a tiny schedule: outputs written, a
+/// second run refuses to overwrite the checkpoint, `--resume` of the finished fit
+/// rewrites the outputs, and a missing measurement is an error naming the file.
+#[test]
+fn cli_fit_runs_resumes_and_reports_bad_input() {
+    let exe = env!("CARGO_BIN_EXE_umbra");
+    let (d, config) = tiny_schedule("cli");
     let out = d.join("out");
     let run = |extra: &[&str]| {
         std::process::Command::new(exe)
@@ -331,16 +338,9 @@ fn cli_fit_runs_resumes_and_reports_bad_input() {
 /// rule picks (the last within 1 % of the lowest loss), its outputs copied to the top
 /// (mesh.obj byte for byte), and a `--resume` of the finished fits ending the same.
 #[test]
-fn cli_init_auto_fits_both_starts_and_keeps_the_rule_s_choice() {
+fn cli_init_auto_fits_every_start_and_keeps_the_rule_s_choice() {
     let exe = env!("CARGO_BIN_EXE_umbra");
-    let d = out_dir("auto");
-    std::fs::create_dir_all(&d).unwrap();
-    let config = d.join("schedule.toml");
-    std::fs::write(
-        &config,
-        "[[stage]]\niters = 3\nlr = 0.01\nlarge_steps = 10.0\ntime_downsample = 8\nscan_downsample = 4\n",
-    )
-    .unwrap();
+    let (d, config) = tiny_schedule("auto");
     let out = d.join("out");
     let run = |extra: &[&str]| {
         let r = std::process::Command::new(exe)

@@ -186,6 +186,8 @@ pub struct Summary {
     pub init: String,
     /// `--init auto`: every start's final loss and time (each fit is in `start-NAME/`).
     pub starts: Vec<StartSummary>,
+    /// `--init auto`: the starts that failed, each with its error (left out of the choice).
+    pub failed_starts: Vec<String>,
     /// For photon-count data: the relative L2 Poisson noise alone gives (the best a
     /// fit can reach at this resolution).
     pub photon_noise_floor: Option<f64>,
@@ -555,6 +557,7 @@ pub fn run(
         reflectance,
     };
     let mut fits = Vec::new();
+    let mut failed = Vec::new();
     for (name, init) in starts {
         let dir = if auto {
             start_dir(&req.output, name)
@@ -571,8 +574,24 @@ pub fn run(
                 dir.display()
             ));
         }
-        fits.push((name, fit(&scene, &measured, &cfg, &dir, progress.clone())?));
+        match fit(&scene, &measured, &cfg, &dir, progress.clone()) {
+            Ok(report) => fits.push((name, report)),
+            // One start of several failing (a step thrown out of the scene, a start the
+            // reconstruction cannot make) leaves the others: said, not fatal.
+            Err(e) if auto && !matches!(e, Error::Cancelled) => {
+                log(&format!(
+                    "{} auto: the {name} start failed, left out: {e}",
+                    n("init")
+                ));
+                failed.push((name, e));
+            }
+            Err(e) => return Err(e),
+        }
     }
+    if fits.is_empty() {
+        return Err(failed.swap_remove(0).1);
+    }
+    let failed_starts: Vec<String> = failed.iter().map(|(n, e)| format!("{n}: {e}")).collect();
     let starts_summary: Vec<StartSummary> = fits
         .iter()
         .map(|(name, r)| StartSummary {
@@ -632,6 +651,7 @@ pub fn run(
             req.init.clone()
         },
         starts: if auto { starts_summary } else { Vec::new() },
+        failed_starts,
         photon_noise_floor: noise_floor,
         chamfer: None,
         score: None,

@@ -374,7 +374,7 @@ fn cli_init_auto_fits_every_start_and_keeps_the_rule_s_choice() {
         .map(|s| s["final_loss"].as_float().unwrap())
         .collect();
     let lowest = losses.iter().cloned().fold(f64::INFINITY, f64::min);
-    let margin = umbra::fit::request::AUTO_LOSS_MARGIN;
+    let margin = umbra::fit::starts::AUTO_LOSS_MARGIN;
     let k = (0..3)
         .rev()
         .find(|&i| losses[i] * (1.0 - margin) <= lowest)

@@ -12,6 +12,7 @@
 //!   data's first returns imply);
 //! - [`request`]: a fit as the CLI and Python ask for it (measurement, defaults,
 //!   truth), the one entry point of both;
+//! - [`starts`]: `--init auto`, a fit from each of several starts, one kept;
 //! - [`support`]: which fitted faces some measurement lights and sees (the rest are
 //!   left out of `mesh.obj`);
 //! - [`run`]: the whole fit with its outputs (mesh, loss curve, transients side by side,
@@ -27,6 +28,7 @@ pub mod request;
 pub mod resolution;
 pub mod run;
 pub mod score;
+pub mod starts;
 pub mod support;
 pub mod time_offset;
 

@@ -12,7 +12,8 @@ use super::prepare::{
     to_mesh,
 };
 use super::resolution::{at_resolution, ScanReduce};
-use super::run::{default_schedule, fit, FitConfig, FitReport, Init};
+use super::run::{default_schedule, FitConfig, FitReport, Init};
+use super::starts::{fit_starts, start_dir, AutoFit, StartSummary, StartsRun};
 use super::{Background, IntensityModel};
 use crate::error::{Error, Result};
 use crate::scene::{CaptureType, Model, Reflectance, Scene};
@@ -66,7 +67,7 @@ pub struct FitRequest {
     pub output: PathBuf,
     /// plane, sphere, scene (the scene's hidden objects), backprojection, lct, or auto
     /// (fits from a plane, a sphere and the LCT, confocal, or the backprojection,
-    /// otherwise; keeps the lowest loss, a later start within [`AUTO_LOSS_MARGIN`]).
+    /// otherwise; keeps the lowest loss, a later start within [`super::starts::AUTO_LOSS_MARGIN`]).
     pub init: String,
     /// The stages (default [`default_schedule`]).
     pub schedule: Option<Schedule>,
@@ -197,53 +198,6 @@ pub struct Summary {
     pub score: Option<super::score::SurfaceScore>,
 }
 
-/// One start of an `--init auto` fit.
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct StartSummary {
-    pub init: String,
-    pub final_loss: f64,
-    pub relative_l2: f64,
-    pub seconds: f64,
-}
-
-/// `--init auto` fits from a plane, a sphere and a reconstruction's depth map (the LCT's,
-/// confocal; the backprojection's, otherwise), in that order, and keeps the lowest final
-/// loss, except that a start later in the order wins when its loss is within this
-/// fraction of the lowest: the reconstruction's start is itself a reconstruction of the
-/// data, a sphere is the shape of a closed object, and losses this close are both at the
-/// data's noise (docs/BASELINES.md: on the tilted plate with Poisson noise the plane's
-/// and the LCT's differ by 0.03 %, and the LCT start's surface is 2.8x closer to the
-/// truth; where another start wins, it wins by 6-15 %).
-pub const AUTO_LOSS_MARGIN: f64 = 0.01;
-
-/// Index of the start `--init auto` keeps among final losses in the order the starts
-/// ran (module rule above: the last start within [`AUTO_LOSS_MARGIN`] of the lowest).
-fn choose_start(losses: &[f64]) -> usize {
-    let lowest = losses.iter().cloned().fold(f64::INFINITY, f64::min);
-    losses
-        .iter()
-        .rposition(|&l| l * (1.0 - AUTO_LOSS_MARGIN) <= lowest)
-        .unwrap_or(0)
-}
-
-/// `OUTDIR/start-NAME`: where `--init auto` fits from start `NAME`.
-fn start_dir(output: &Path, name: &str) -> PathBuf {
-    output.join(format!("start-{name}"))
-}
-
-/// Copies the chosen start's outputs into `out` (atomically); their new paths.
-fn copy_outputs(files: &[PathBuf], out: &Path) -> Result<Vec<PathBuf>> {
-    files
-        .iter()
-        .map(|f| {
-            let to = out.join(f.file_name().unwrap_or_default());
-            let bytes = std::fs::read(f).map_err(|e| Error::io(f, e))?;
-            write_atomic(&to, &bytes).map_err(|e| Error::io(&to, e))?;
-            Ok(to)
-        })
-        .collect()
-}
-
 /// What [`run`] returns.
 pub struct FitOutcome {
     pub report: FitReport,
@@ -311,8 +265,8 @@ pub fn run(
                 req.model
             ))
         })?;
-    // `--init auto` fits from each start in its own folder (`start-plane`, `start-lct`);
-    // the first one's checkpoint is the one a resume needs.
+    // `--init auto` fits from each start in its own folder (`fit::starts`); the first
+    // one's (the plane's) checkpoint is the one a resume needs.
     let auto = req.init == "auto";
     let checkpoint_dir = if auto {
         start_dir(&req.output, "plane").join("checkpoint")
@@ -556,66 +510,25 @@ pub fn run(
         time_offset_max_opl,
         reflectance,
     };
-    let mut fits = Vec::new();
-    let mut failed = Vec::new();
-    for (name, init) in starts {
-        let dir = if auto {
-            start_dir(&req.output, name)
-        } else {
-            req.output.clone()
-        };
-        cfg.init = init;
-        // A start an interrupted `auto` fit never reached has no checkpoint: it starts.
-        cfg.resume = req.resume && dir.join("checkpoint").join("stage.bin").exists();
-        if auto {
-            log(&format!(
-                "{} auto: fitting from the {name} start ({})",
-                n("init"),
-                dir.display()
-            ));
-        }
-        match fit(&scene, &measured, &cfg, &dir, progress.clone()) {
-            Ok(report) => fits.push((name, report)),
-            // One start of several failing (a step thrown out of the scene, a start the
-            // reconstruction cannot make) leaves the others: said, not fatal.
-            Err(e) if auto && !matches!(e, Error::Cancelled) => {
-                log(&format!(
-                    "{} auto: the {name} start failed, left out: {e}",
-                    n("init")
-                ));
-                failed.push((name, e));
-            }
-            Err(e) => return Err(e),
-        }
-    }
-    if fits.is_empty() {
-        return Err(failed.swap_remove(0).1);
-    }
-    let failed_starts: Vec<String> = failed.iter().map(|(n, e)| format!("{n}: {e}")).collect();
-    let starts_summary: Vec<StartSummary> = fits
-        .iter()
-        .map(|(name, r)| StartSummary {
-            init: name.to_string(),
-            final_loss: r.final_loss,
-            relative_l2: r.final_loss.sqrt(),
-            seconds: r.seconds,
-        })
-        .collect();
-    let chosen = choose_start(&fits.iter().map(|(_, r)| r.final_loss).collect::<Vec<_>>());
-    let (chosen_name, mut report) = fits.swap_remove(chosen);
-    if auto {
-        report.files = copy_outputs(&report.files, &req.output)?;
-        report.seconds = starts_summary.iter().map(|s| s.seconds).sum();
-        log(&format!(
-            "{} auto: kept the {chosen_name} start ({})",
-            n("init"),
-            starts_summary
-                .iter()
-                .map(|s| format!("{}: relative L2 {:.4}", s.init, s.relative_l2))
-                .collect::<Vec<_>>()
-                .join(", ")
-        ));
-    }
+    let AutoFit {
+        name: chosen_name,
+        report,
+        starts: starts_summary,
+        failed: failed_starts,
+    } = fit_starts(
+        &scene,
+        &measured,
+        &mut cfg,
+        starts,
+        &StartsRun {
+            output: &req.output,
+            auto,
+            resume: req.resume,
+            flag: &n("init"),
+        },
+        progress,
+        log,
+    )?;
     // A fit that ends where the surface returns nothing it can use has failed, whatever
     // its exit status: say so rather than report a mesh as if it were one.
     let no_signal =
@@ -650,7 +563,7 @@ pub fn run(
         } else {
             req.init.clone()
         },
-        starts: if auto { starts_summary } else { Vec::new() },
+        starts: starts_summary,
         failed_starts,
         photon_noise_floor: noise_floor,
         chamfer: None,
@@ -687,22 +600,4 @@ pub fn run(
         measured,
         shape: scene.output_shape(),
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn auto_keeps_the_lowest_loss_or_a_later_start_within_the_margin() {
-        assert_eq!(choose_start(&[0.0228943, 0.0229015]), 1); // a tie: the later one
-        assert_eq!(choose_start(&[0.0290, 0.0288]), 1);
-        assert_eq!(choose_start(&[0.0175, 0.0196]), 0); // 11 % lower: the plane's
-        assert_eq!(choose_start(&[0.5]), 0); // one start
-                                             // plane, sphere, reconstruction: the lowest, unless a later one is within 1 %
-        assert_eq!(choose_start(&[0.0139, 0.0097, 0.0150]), 1);
-        assert_eq!(choose_start(&[0.0139, 0.0097, 0.00975]), 2);
-        assert_eq!(choose_start(&[0.0100, 0.0200, 0.0300]), 0);
-        assert_eq!(choose_start(&[0.0100, 0.01005, 0.0300]), 1);
-    }
 }

@@ -461,6 +461,32 @@ fn retroreflective_with_a_monte_carlo_model_says_why() {
 }
 
 #[test]
+fn a_retro_falloff_for_a_lambertian_surface_or_too_steep_is_refused() {
+    let d = tmp_dir("fit-falloff");
+    let scene = spec().write(&d);
+    let config = d.join("schedule.toml");
+    std::fs::write(&config, SCHEDULE).unwrap();
+    let cfg = config.to_str().unwrap();
+    let cases: [(&[&str], &str); 2] = [
+        (
+            &["--retro-falloff", "2"],
+            "--retro-falloff = 2 is for a retroreflective surface, and this one is lambertian",
+        ),
+        (
+            &["--reflectance", "retroreflective", "--retro-falloff", "7"],
+            "--retro-falloff = 7: the angular falloff exponent is a whole number from 0 to 4",
+        ),
+    ];
+    for (args, says) in cases {
+        let mut all = vec!["--config", cfg];
+        all.extend_from_slice(args);
+        let o = umbra_fit(&scene, &d.join("out"), &all, Duration::from_secs(60));
+        refused(&o, &[says]);
+    }
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+#[test]
 fn a_measurement_of_nothing_is_refused_and_a_fit_of_nothing_warns() {
     // The hidden square beyond the film's last bin: the demonstration target is zero
     // (the fit used to end in "loss.png: cannot draw the chart").

@@ -296,7 +296,7 @@ fn what_mitransient_cannot_express_is_refused_naming_the_field() {
     no_rr.render.rr_bounces = 0;
     assert_eq!(field(no_rr), "render.rr_bounces");
     let mut retro = build(&toml("confocal", 1.2, "irradiance = 1.0", "", "")).unwrap();
-    retro.objects[1].reflectance = umbra::scene::Reflectance::Retroreflective;
+    retro.objects[1].reflectance = umbra::scene::Reflectance::RETRO;
     assert_eq!(field(retro), "objects[1]");
     assert!(
         !dir.join("r_0.obj").exists(),

@@ -19,6 +19,19 @@ fn scene_of(capture: &str, obj: &str, reflectance: &str, scan: u32, z: f32) -> S
 }
 
 fn scene_toml(capture: &str, reflectance: &str, scan: u32, z: f32) -> String {
+    let transform = format!("{{ translate = [0.0123, 0.0071, {z}] }}");
+    scene_toml_at(capture, reflectance, scan, &transform)
+}
+
+/// `text` with its object's angular falloff exponent set to `m`.
+fn with_falloff(text: &str, m: u32) -> String {
+    text.replace(
+        "reflectance = \"retroreflective\"",
+        &format!("reflectance = \"retroreflective\"\nretro_falloff = {m}"),
+    )
+}
+
+fn scene_toml_at(capture: &str, reflectance: &str, scan: u32, transform: &str) -> String {
     format!(
         r#"
 capture_type = "{capture}"
@@ -41,7 +54,7 @@ sigma_opl = 0.012
 file = "o.obj"
 albedo = 0.7
 reflectance = "{reflectance}"
-transform = {{ translate = [0.0123, 0.0071, {z}] }}
+transform = {transform}
 [render]
 model = "tri3"
 "#
@@ -69,9 +82,80 @@ fn falloff_is_inverse_square_for_retroreflectors_and_inverse_fourth_for_lamberti
 }
 
 #[test]
+fn angular_falloff_scales_the_return_by_cos_to_the_m() {
+    // A 1 cm square 0.5 m in front of a single confocal scan point, turned 40° about x:
+    // the entrance angle is 40° all over it (to ±0.6°).
+    let patch = square_obj([0.0, 0.0, 0.0], 0.01);
+    let at =
+        r#"{ rotate = [{ axis = [1.0, 0.0, 0.0], angle = 40.0 }], translate = [0.0, 0.0, 0.5] }"#;
+    let ideal = scene_toml_at("confocal", "retroreflective", 1, at);
+    let base = total(&scene(&ideal, &[("o.obj", &patch)]));
+    assert!(base > 0.0);
+    let cos = 40f64.to_radians().cos();
+    for m in 1..=umbra::scene::MAX_RETRO_FALLOFF as u32 {
+        let s = scene(&with_falloff(&ideal, m), &[("o.obj", &patch)]);
+        assert_eq!(s.objects[0].reflectance.falloff(), m as u8);
+        let ratio = total(&s) / base;
+        let want = cos.powi(m as i32);
+        println!("m = {m}: ratio {ratio:.5}, cos^m 40° = {want:.5}");
+        assert!(
+            (ratio / want - 1.0).abs() < 1e-3,
+            "m = {m}: {ratio} against {want}"
+        );
+    }
+}
+
+#[test]
+fn kernel_with_falloff_matches_the_f64_reference() {
+    let text = with_falloff(&scene_toml("confocal", "retroreflective", 4, 0.8), 3);
+    let s = scene(&text, &[("o.obj", LETTER)]);
+    assert_eq!(
+        s.objects[0].reflectance,
+        Reflectance::Retroreflective { falloff: 3 }
+    );
+    let geom = SceneGeometry::build(&s);
+    let opts = RenderOptions {
+        model: Model::Tri3,
+        ..RenderOptions::from_scene(&s)
+    };
+    let rel = kernel_vs_reference(&s, &geom, &opts);
+    println!("kernel vs reference, falloff 3: {rel:.2e}");
+    assert!(rel < 2e-5, "{rel}");
+}
+
+#[test]
+fn adjoint_with_falloff_matches_finite_differences() {
+    // The letter turned 35° about y, so that the entrance angles (and the falloff) vary.
+    let at = r#"{ rotate = [{ axis = [0.0, 1.0, 0.0], angle = 35.0 }], translate = [0.0123, 0.0071, 0.8] }"#;
+    let text = with_falloff(&scene_toml_at("confocal", "retroreflective", 3, at), 2);
+    check(&scene(&text, &[("o.obj", LETTER)]), Model::Tri3, 1, 6);
+}
+
+#[test]
+fn a_bad_falloff_names_the_field() {
+    let ideal = scene_toml("confocal", "retroreflective", 2, 0.8);
+    let too_steep = try_scene(&with_falloff(&ideal, 5), &[("o.obj", LETTER)]);
+    let e = too_steep.map(|_| ()).unwrap_err().to_string();
+    assert!(
+        e.contains("objects[0].retro_falloff") && e.contains("0 to 4"),
+        "{e}"
+    );
+    let lambertian = scene_toml("confocal", "lambertian", 2, 0.8)
+        .replace("reflectance = \"lambertian\"", "retro_falloff = 2");
+    let e = try_scene(&lambertian, &[("o.obj", LETTER)])
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("objects[0].retro_falloff") && e.contains("lambertian"),
+        "{e}"
+    );
+}
+
+#[test]
 fn kernel_matches_the_f64_reference() {
     let s = scene_of("confocal", LETTER, "retroreflective", 4, 0.8);
-    assert_eq!(s.objects[0].reflectance, Reflectance::Retroreflective);
+    assert_eq!(s.objects[0].reflectance, Reflectance::RETRO);
     let geom = SceneGeometry::build(&s);
     let opts = RenderOptions {
         model: Model::Tri3,

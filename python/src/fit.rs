@@ -40,7 +40,7 @@ fn mesh_dict<'py>(py: Python<'py>, m: &optim::Mesh) -> PyResult<Bound<'py, PyDic
 #[pyo3(signature = (
     scene, measured, output, *, init = "plane", schedule = None, iters = None, resume = false,
     model = "tri3", spp = 16, known_scale = false, background = None, jitter = None, irf = None,
-    time_offset = None, reflectance = None, ignore_before = None, truth = false, bin = None,
+    time_offset = None, reflectance = None, retro_falloff = None, ignore_before = None, truth = false, bin = None,
     target_spp = 4096, threads = None, progress = None, boundary_terms = None
 ))]
 #[allow(clippy::too_many_arguments)]
@@ -61,6 +61,7 @@ pub fn fit<'py>(
     irf: Option<String>,
     time_offset: Option<f64>,
     reflectance: Option<String>,
+    retro_falloff: Option<u32>,
     ignore_before: Option<f32>,
     truth: bool,
     bin: Option<(u32, u32)>,
@@ -111,6 +112,7 @@ pub fn fit<'py>(
         irf,
         time_offset,
         reflectance,
+        retro_falloff,
         ignore_before,
         truth,
         bin,

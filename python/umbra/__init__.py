@@ -146,7 +146,7 @@ def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
         known_scale: bool = False, background: Optional[str] = None,
         jitter: Optional[float] = None, irf: Optional[str] = None,
         time_offset: Optional[float] = None, reflectance: Optional[str] = None,
-        ignore_before: Optional[float] = None, truth: bool = False,
+        retro_falloff: Optional[int] = None, ignore_before: Optional[float] = None, truth: bool = False,
         bin: Optional[Tuple[int, int]] = None, target_spp: int = 4096,
         threads: Optional[int] = None,
         progress: Optional[Callable[[Dict[str, Any]], Any]] = None,
@@ -172,7 +172,9 @@ def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
     ``sphere``, ``scene``, ``backprojection``, ``lct`` (confocal) or ``auto`` (fits from a
     plane, a sphere and a reconstruction's depth map, the LCT's for confocal captures, the
     backprojection's otherwise; keeps the lowest loss, a later start of the three within
-    1 % of it winning).
+    1 % of it winning). ``retro_falloff``: a retroreflective surface's angular falloff
+    exponent ``m`` (its return scaled by ``cos^m`` of the entrance angle; 0 to 4, default
+    the scene object's ``retro_falloff``, else 0).
 
     Returns a dict: ``vertices`` (N, 3) float64 and ``triangles`` (F, 3) uint32, the
     fitted surface (faces fitted dark, and faces no measurement lights and sees, dropped,
@@ -194,7 +196,8 @@ def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
             toml_text = _schedule_toml(schedule)
     kw: Dict[str, Any] = dict(init=init, schedule=toml_text, iters=iters, resume=resume, model=model, spp=spp,
               known_scale=known_scale, background=background, jitter=jitter, irf=irf,
-              time_offset=time_offset, reflectance=reflectance, ignore_before=ignore_before,
+              time_offset=time_offset, reflectance=reflectance, retro_falloff=retro_falloff,
+              ignore_before=ignore_before,
               truth=truth, bin=bin, target_spp=target_spp, threads=threads, progress=progress,
               boundary_terms=boundary_terms)
     if output is not None:

@@ -73,6 +73,7 @@ impl ChainDual {
                 albedo: t.albedo.map(|a| ChainNum::c(a as f64)),
                 two_sided: t.two_sided,
                 retro: t.retro,
+                retro_falloff: t.retro_falloff,
             }
         };
         let wall_n: V3<ChainNum> = dual::constant(ctx.n_w);

@@ -89,6 +89,9 @@ pub struct FitRequest {
     pub time_offset: Option<f64>,
     /// lambertian or retroreflective; default the scene's first hidden object's.
     pub reflectance: Option<String>,
+    /// A retroreflective surface's angular falloff exponent `m` (`cos^m θ`); default the
+    /// scene's first hidden object's, or 0 with `reflectance`.
+    pub retro_falloff: Option<u32>,
     /// Leave OPLs below this (m) out; default 0.72 m for LCT captures.
     pub ignore_before: Option<f32>,
     /// With a measurement: the scene's hidden objects are the truth (Chamfer reported).
@@ -119,6 +122,7 @@ impl FitRequest {
             irf: None,
             time_offset: None,
             reflectance: None,
+            retro_falloff: None,
             ignore_before: None,
             truth: false,
             bin: None,
@@ -400,7 +404,13 @@ pub fn run(
             ))
         })?,
     };
-    if reflectance == Reflectance::Retroreflective {
+    let reflectance = match req.retro_falloff {
+        None => reflectance,
+        Some(m) => reflectance
+            .with_falloff(m, &n("retro_falloff"))
+            .map_err(Error::Invalid)?,
+    };
+    if reflectance.is_retro() {
         let whose = if req.reflectance.is_none() {
             " (the scene's first hidden object's)"
         } else {

@@ -67,6 +67,8 @@ pub struct HiddenTri {
     pub two_sided: bool,
     /// Retroreflective ([`crate::scene::Reflectance`]); Lambertian otherwise.
     pub retro: bool,
+    /// A retroreflector's angular falloff exponent `m` (`cos^m θ`; 0 otherwise).
+    pub retro_falloff: u8,
 }
 
 impl HiddenTri {
@@ -124,7 +126,8 @@ impl SceneGeometry {
                         None => [o.albedo; 3],
                     },
                     two_sided: o.two_sided,
-                    retro: o.reflectance == crate::scene::Reflectance::Retroreflective,
+                    retro: o.reflectance.is_retro(),
+                    retro_falloff: o.reflectance.falloff(),
                 });
                 tris.push(tri(a, b, c));
                 meta.push((

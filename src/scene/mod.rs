@@ -251,15 +251,55 @@ pub enum Reflectance {
     /// from, so the return leg's `cos θ_x cos θ_wall / r²` becomes a constant (1/m²) and
     /// the signal falls as `1/r²` instead of `1/r⁴`. Confocal capture and `tri3` only (a
     /// perfect retroreflector sends nothing to a sensor point away from the laser spot).
-    Retroreflective,
+    ///
+    /// `falloff` is the sheeting's angular falloff: the returned light is scaled by
+    /// `cos^m θ_x` (`m = falloff`, whole, 0 to [`MAX_RETRO_FALLOFF`]; `θ_x` the entrance
+    /// angle at the surface). Real retroreflective sheeting returns less light at
+    /// oblique entrance (its retroreflection coefficient roughly halves by 30–40°:
+    /// `m` ≈ 1–3); `m = 0` is the ideal retroreflector.
+    Retroreflective { falloff: u8 },
 }
 
+/// The largest angular falloff exponent of [`Reflectance::Retroreflective`] (the kernels
+/// raise `cos θ` to a whole power by at most this many branch-free products).
+pub const MAX_RETRO_FALLOFF: u8 = 4;
+
 impl Reflectance {
+    /// The ideal retroreflector (no angular falloff).
+    pub const RETRO: Reflectance = Reflectance::Retroreflective { falloff: 0 };
+
     pub fn parse(s: &str) -> Option<Reflectance> {
         match s {
             "lambertian" | "diffuse" => Some(Reflectance::Lambertian),
-            "retroreflective" => Some(Reflectance::Retroreflective),
+            "retroreflective" => Some(Reflectance::RETRO),
             _ => None,
+        }
+    }
+
+    pub fn is_retro(self) -> bool {
+        matches!(self, Reflectance::Retroreflective { .. })
+    }
+
+    /// The angular falloff exponent `m` (0 for Lambertian and the ideal retroreflector).
+    pub fn falloff(self) -> u8 {
+        match self {
+            Reflectance::Retroreflective { falloff } => falloff,
+            Reflectance::Lambertian => 0,
+        }
+    }
+
+    /// This reflectance with the falloff exponent `m` ([`MAX_RETRO_FALLOFF`] at most),
+    /// or why not: `what` names the field in the message.
+    pub fn with_falloff(self, m: u32, what: &str) -> std::result::Result<Reflectance, String> {
+        match self {
+            _ if m > u32::from(MAX_RETRO_FALLOFF) => Err(format!(
+                "{what} = {m}: the angular falloff exponent is a whole number from 0 to {MAX_RETRO_FALLOFF}"
+            )),
+            Reflectance::Retroreflective { .. } => Ok(Reflectance::Retroreflective { falloff: m as u8 }),
+            Reflectance::Lambertian if m == 0 => Ok(self),
+            Reflectance::Lambertian => Err(format!(
+                "{what} = {m} is for a retroreflective surface, and this one is lambertian"
+            )),
         }
     }
 }

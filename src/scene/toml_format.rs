@@ -114,6 +114,8 @@ struct ObjectT {
     two_sided: bool,
     /// `lambertian` (default) or `retroreflective`.
     reflectance: Option<String>,
+    /// A retroreflective surface's angular falloff exponent `m` (`cos^m θ`; default 0).
+    retro_falloff: Option<u32>,
     #[serde(default)]
     transform: TransformT,
 }
@@ -406,6 +408,12 @@ pub fn parse(
                     format!("'{r}' is not one of lambertian, retroreflective"),
                 )
             })?,
+        };
+        let reflectance = match o.retro_falloff {
+            None => reflectance,
+            Some(m) => reflectance
+                .with_falloff(m, "retro_falloff")
+                .map_err(|e| field(&format!("objects[{i}].retro_falloff"), e))?,
         };
         objects.push(HiddenObject {
             name,

@@ -24,7 +24,7 @@
 
 use super::RenderOptions;
 use crate::error::{Error, Result};
-use crate::scene::{CaptureType, Model, Reflectance, RenderSettings, Scene, Visibility};
+use crate::scene::{CaptureType, Model, RenderSettings, Scene, Visibility};
 
 /// Which pass the scene is checked for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -115,7 +115,7 @@ fn check_reflectance(scene: &Scene, model: Model) -> Result<()> {
         .objects
         .iter()
         .enumerate()
-        .find(|(_, o)| o.reflectance == Reflectance::Retroreflective)
+        .find(|(_, o)| o.reflectance.is_retro())
     else {
         return Ok(());
     };

@@ -38,6 +38,8 @@ pub struct TriParams<R> {
     pub two_sided: bool,
     /// Retroreflective (`tri3` only; [`crate::scene::Reflectance`]).
     pub retro: bool,
+    /// Its angular falloff exponent (`tri3` only).
+    pub retro_falloff: u8,
 }
 
 impl TriParams<f32> {
@@ -47,6 +49,7 @@ impl TriParams<f32> {
             albedo: t.albedo,
             two_sided: t.two_sided,
             retro: t.retro,
+            retro_falloff: t.retro_falloff,
         }
     }
 }
@@ -65,6 +68,7 @@ impl<T: Float, const N: usize> TriParams<Dual<T, N>> {
             albedo: std::array::from_fn(|i| var(t.albedo[i], 9 + i)),
             two_sided: t.two_sided,
             retro: t.retro,
+            retro_falloff: t.retro_falloff,
         }
     }
 }

@@ -222,6 +222,7 @@ impl Replay {
                     albedo: c.albedo.map(|a| PathDual::c(a as f64)),
                     two_sided: c.two_sided,
                     retro: c.retro,
+                    retro_falloff: c.retro_falloff,
                 };
             }
         };

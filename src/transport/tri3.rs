@@ -72,6 +72,8 @@ pub struct Tri3Mesh {
     pub two_sided: Vec<bool>,
     /// Per sub-triangle: retroreflective.
     pub retro: Vec<bool>,
+    /// Per sub-triangle: a retroreflector's angular falloff exponent (`cos^m θ`).
+    pub retro_falloff: Vec<u8>,
     /// Per sub-triangle: area (m²).
     pub area: Vec<f32>,
     /// Per sub-triangle: centroid (curvature shift, `subtriangle` visibility).
@@ -159,6 +161,7 @@ impl Tri3Mesh {
             &m.area,
             &m.two_sided,
             &m.retro,
+            &m.retro_falloff,
         );
         m
     }
@@ -244,6 +247,7 @@ impl Tri3Mesh {
         apply(&mut self.plane, order);
         apply(&mut self.two_sided, order);
         apply(&mut self.retro, order);
+        apply(&mut self.retro_falloff, order);
         apply(&mut self.area, order);
         apply(&mut self.centroid, order);
         apply(&mut self.parent, order);
@@ -394,6 +398,7 @@ impl Tri3Mesh {
                     self.plane.push(t.n.dot((pa + pb + pc) / 3.0));
                     self.two_sided.push(t.two_sided);
                     self.retro.push(t.retro);
+                    self.retro_falloff.push(t.retro_falloff);
                     self.area.push(0.5 * (pb - pa).cross(pc - pa).length());
                     self.centroid.push((pa + pb + pc) / 3.0);
                     self.parent.push(flat);

@@ -261,8 +261,10 @@ pub struct BlockGrad {
 /// - shift: `S = Σ g_τi`, `∂L/∂τ'_i = g_τi − S/4`, `∂L/∂τ(c) = 3S/4`;
 /// - `∂τ'_i/∂v_i = −(d_l/r_l + d_s/r_s)/width` (likewise the centroid, `1/3` per corner);
 /// - `w_i = G (ρ_i/π) k_i` with `k_i` the legs' weight: `∂k_i/∂v_i = k_i (n_w/c_l +
-///   4 d_l/r_l² + n_w/c_s + 4 d_s/r_s²)` (retroreflective: the first two);
-/// - `G = |p_l p_s|`: `∂G/∂p_l = sgn(p_l p_s) p_s`; `∂p/∂n = x`, `∂p/∂d = −1`.
+///   4 d_l/r_l² + n_w/c_s + 4 d_s/r_s²)` (retroreflective: the first two, and a falloff
+///   `(|p_l|/r_l)^m` in `k_i` makes the second `(4 + m) d_l/r_l²`);
+/// - `G = |p_l p_s|`: `∂G/∂p_l = sgn(p_l p_s) p_s` (retroreflective `G = |p_l|`, with the
+///   falloff's `m/p_l` of `k_i`: `(1 + m) sgn(p_l)`); `∂p/∂n = x`, `∂p/∂d = −1`.
 #[allow(clippy::needless_range_loop)] // corners and axes by index, as the equations
 fn reverse<const CONFOCAL: bool>(
     block: &TriBlock,
@@ -293,6 +295,7 @@ fn reverse<const CONFOCAL: bool>(
         v(&sorted[6]) * scale,
     );
     let retro = v(&block.retro).cmp_gt(zero);
+    let falloff = v(&block.falloff);
     let two_sided = v(&block.two_sided).cmp_gt(zero);
     let n = [0, 1, 2].map(|k| v(&block.n[k]));
     let plane = Plane::new::<CONFOCAL>(wall, n, v(&block.plane), two_sided, retro);
@@ -315,8 +318,9 @@ fn reverse<const CONFOCAL: bool>(
         let a_l = front.blend(one / legs.c_l, zero);
         // 4/r² as 4 (1/r)²: one division per leg, not two. (Confocal, the sensor leg's
         // terms are the laser leg's, which the compiler sees: `lanes::<true>`.)
+        // (A retroreflector's falloff `(|p_l|/r_l)^m` adds `m d_l/r_l²`: `4 + m`.)
         let four = f32x8::splat(4.0);
-        let b_l = four * u_l * u_l;
+        let b_l = (four + falloff) * u_l * u_l;
         let a_s = (front & !retro).blend(one / legs.c_s, zero);
         let b_s = retro.blend(zero, four * u_s * u_s);
         for k in 0..3 {
@@ -338,7 +342,12 @@ fn reverse<const CONFOCAL: bool>(
     let sgn = |x: f32x8| x.cmp_gt(zero).blend(one, x.cmp_lt(zero).blend(-one, zero));
     let g_factor = plane.facing.blend(g_factor, zero);
     let s = sgn(plane.p_l * plane.p_s);
-    let g_pl = retro.blend(g_factor * sgn(plane.p_l), g_factor * s * plane.p_s);
+    // Retroreflective: `G = |p_l|`, and the corners' falloff `|p_l|^m` (in `k_i`) adds
+    // `m/p_l` of `G`'s own: `(1 + m) sgn(p_l)`.
+    let g_pl = retro.blend(
+        g_factor * sgn(plane.p_l) * (one + falloff),
+        g_factor * s * plane.p_s,
+    );
     let g_ps = retro.blend(zero, g_factor * s * plane.p_l);
     for k in 0..3 {
         acc.0[12 + k] += g_pl * wall.x_l[k] + g_ps * wall.x_s[k];
@@ -484,14 +493,18 @@ mod tests {
     /// The lane reverse and the chain to the original triangle, pair by pair, against the
     /// dual-number model (`tri3_exact::pair_pulse`: the pulse inputs' derivatives with
     /// respect to the original triangle), for the same `∂L/∂(τ, w, A)`, on the default
-    /// scene: one-sided, two-sided, retroreflective.
+    /// scene: one-sided, two-sided, retroreflective, retroreflective with angular falloff.
     #[test]
     fn lane_reverse_matches_the_dual_model_per_pair() {
         let mut scene = crate::scene::default::default_scene().unwrap();
-        for variant in 0..3 {
+        for variant in 0..4 {
             match variant {
                 1 => scene.objects[0].two_sided = !scene.objects[0].two_sided,
-                2 => scene.objects[0].reflectance = crate::scene::Reflectance::Retroreflective,
+                2 => scene.objects[0].reflectance = crate::scene::Reflectance::RETRO,
+                3 => {
+                    scene.objects[0].reflectance =
+                        crate::scene::Reflectance::Retroreflective { falloff: 3 }
+                }
                 _ => {}
             }
             let geom = SceneGeometry::build(&scene);

@@ -96,7 +96,10 @@ pub fn pair_pulse<R: Real>(
         if c_l.v() > 0.0 && c_s.v() > 0.0 {
             let brdf = parent.albedo_at(corner_bary[i]).s(FRAC_1_PI);
             w[i] = if parent.retro {
-                brdf * plane * c_l / (r2_l * r2_l)
+                // The sheeting's angular falloff, cos^m θ_l = (|p_l| / r_l)^m.
+                let cos = p_l.abs() / r2_l.sqrt();
+                let falloff = (0..parent.retro_falloff).fold(R::c(1.0), |f, _| f * cos);
+                brdf * plane * c_l / (r2_l * r2_l) * falloff
             } else {
                 let r4 = r2_l * r2_s;
                 brdf * plane * c_l * c_s / (r4 * r4)
@@ -135,6 +138,7 @@ impl TriParams<f64> {
             albedo: t.albedo.map(f64::from),
             two_sided: t.two_sided,
             retro: t.retro,
+            retro_falloff: t.retro_falloff,
         }
     }
 }

@@ -251,6 +251,20 @@ impl<N: Lane> Legs<N> {
         };
         N::select(self.front(), w, N::splat(0.0))
     }
+
+    /// A retroreflector's angular falloff at this corner, `cos^m θ_l = (|p_l| / r_l)^m`
+    /// (`p_l` the plane term of [`Plane`], `m = falloff` whole, 0 to
+    /// [`crate::scene::MAX_RETRO_FALLOFF`]; 1 where `m = 0`). Its derivative, for the
+    /// adjoint: `∂ ln/∂v = m d_l / r_l²` and `∂ ln/∂p_l = m / p_l`.
+    #[inline(always)]
+    pub fn falloff(&self, p_l: N, falloff: N) -> N {
+        let cos = p_l.abs() / self.r_l;
+        let mut f = N::splat(1.0);
+        for k in 0..crate::scene::MAX_RETRO_FALLOFF {
+            f = N::select(falloff.gt(N::splat(f32::from(k) + 0.5)), f * cos, f);
+        }
+        f
+    }
 }
 
 /// A triangle's plane terms: `p_l = n·x_l − d`, `p_s`, and the factor `|p_l p_s|`

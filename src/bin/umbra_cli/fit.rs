@@ -79,6 +79,11 @@ pub struct FitArgs {
     /// the scene's first hidden object's, else lambertian.
     #[arg(long)]
     pub reflectance: Option<String>,
+    /// A retroreflective surface's angular falloff exponent m: its return scaled by
+    /// cos^m of the entrance angle (whole, 0 to 4; default the scene object's
+    /// `retro_falloff`, else 0, the ideal retroreflector).
+    #[arg(long)]
+    pub retro_falloff: Option<u32>,
     /// Samples per measurement of the demonstration target (no `--measured`).
     #[arg(long, default_value_t = 4096)]
     pub target_spp: u32,
@@ -164,6 +169,7 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         irf: args.irf.clone(),
         time_offset: args.time_offset,
         reflectance: args.reflectance.clone(),
+        retro_falloff: args.retro_falloff,
         ignore_before: args.ignore_before,
         truth: args.truth,
         bin: args.bin,

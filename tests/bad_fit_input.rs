@@ -473,8 +473,8 @@ fn a_retro_falloff_for_a_lambertian_surface_or_too_steep_is_refused() {
             "--retro-falloff = 2 is for a retroreflective surface, and this one is lambertian",
         ),
         (
-            &["--reflectance", "retroreflective", "--retro-falloff", "7"],
-            "--retro-falloff = 7: the angular falloff exponent is a whole number from 0 to 4",
+            &["--reflectance", "retroreflective", "--retro-falloff", "20"],
+            "--retro-falloff = 20: the angular falloff exponent is a number from 0 to 16",
         ),
     ];
     for (args, says) in cases {

@@ -61,7 +61,7 @@ pub fn fit<'py>(
     irf: Option<String>,
     time_offset: Option<f64>,
     reflectance: Option<String>,
-    retro_falloff: Option<u32>,
+    retro_falloff: Option<f32>,
     ignore_before: Option<f32>,
     truth: bool,
     bin: Option<(u32, u32)>,

@@ -9,7 +9,10 @@ same capture (issue 20; docs/BASELINES.md).
 Per capture and model: `umbra fit scenes/lct.toml --measured data_X.mat --init auto`
 (the defaults of docs/FITTING.md: bins before OPL 0.72 m left out, 8,2 binning, per-bin
 background, the measured impulse response, except s_u's 9 mm Gaussian, RESPONSE),
-`--reflectance retroreflective` for the retroreflective model. The reconstructions: `umbra recon --method lct --time-bin 8
+`--reflectance retroreflective` for the retroreflective model, with the sheeting's angular
+falloff `--retro-falloff M` chosen per capture: a fit from a plane for each M of FALLOFFS
+(~10 s each: retroreflective receivers have no boundary terms), the M of the lowest
+relative L2 kept for the final fit. The reconstructions: `umbra recon --method lct --time-bin 8
 --subtract-floor --snr 0.1` on 64 x 64 x 256 voxels over 0.2-1.2 m, and y-tal's fk
 (ytal_recon.py) of the same preprocessed capture (`umbra convert --ignore-before 0.72
 --time-bin 8`) on the same grid, both shown as front maximum projections over the depths
@@ -47,18 +50,41 @@ SHOW = (0.25, 0.9)
 # "Retroreflective captures": relative L2 0.167 against 0.240).
 RESPONSE = {"s_u": ["--irf", "none", "--jitter", "0.009"]}
 
+# The retroreflective model's angular falloff exponents tried per capture (cos^m).
+FALLOFFS = (0, 2, 4, 8, 12, 16)
 
-def fit(capture, model, out, init="auto"):
-    """`umbra fit` of the capture with `model`; its summary, and the fitted surface's depth
-    map on the reconstructions' grid (fit/depth/depth.npy)."""
-    d = os.path.join(out, f"{capture}-{model}")
-    shutil.rmtree(d, ignore_errors=True)  # a fresh fit
+
+def fit_only(capture, model, d, init, falloff=None):
+    """`umbra fit` of the capture with `model` into `d` (fresh); its summary."""
+    shutil.rmtree(d, ignore_errors=True)
     mat = os.path.join(DATA, f"data_{capture}.mat")
     cmd = [UMBRA, "fit", os.path.join(ROOT, "scenes", "lct.toml"), "--measured", mat,
            "--init", init, "-q", "-o", d, *RESPONSE.get(capture, [])]
     if model == "retroreflective":
         cmd += ["--reflectance", "retroreflective"]
+        if falloff is not None:
+            cmd += ["--retro-falloff", str(falloff)]
     run(cmd)
+    return read_toml(os.path.join(d, "summary.toml"))
+
+
+def choose_falloff(capture, out):
+    """The falloff exponent of FALLOFFS whose fit from a plane has the lowest relative
+    L2, and every one's relative L2 (the sweep)."""
+    sweep = {}
+    for m in FALLOFFS:
+        d = os.path.join(out, f"{capture}-retro-sweep", f"m{m}")
+        sweep[m] = fit_only(capture, "retroreflective", d, "plane", m)["relative_l2"]
+        print(f"{capture} retroreflective, falloff {m}: relative L2 {sweep[m]:.4f}", flush=True)
+    return min(sweep, key=sweep.get), sweep
+
+
+def fit(capture, model, out, init="auto", falloff=None):
+    """`umbra fit` of the capture with `model`; its summary, and the fitted surface's depth
+    map on the reconstructions' grid (fit/depth/depth.npy)."""
+    d = os.path.join(out, f"{capture}-{model}")
+    mat = os.path.join(DATA, f"data_{capture}.mat")
+    fit_only(capture, model, d, init, falloff)
     run([UMBRA, "recon", os.path.join(ROOT, "scenes", "lct.toml"), "--measured", mat,
          "--mesh", os.path.join(d, "mesh.obj"), *grid(capture), "-o", os.path.join(d, "depth")])
     return read_toml(os.path.join(d, "summary.toml")), os.path.join(d, "depth", "depth.npy")
@@ -138,16 +164,21 @@ def main(argv=None):
     ap.add_argument("--out", default=os.path.join(ROOT, "out", "lct_captures"))
     ap.add_argument("--docs", default=os.path.join(ROOT, "docs"))
     args = ap.parse_args(argv)
-    rows = []
+    rows, sweeps = [], []
     for c in args.captures.split(","):
         lct_dir = lct(c, args.out)
         fk_vol = fk(c, args.out, os.path.join(lct_dir, "summary.toml"))
         fits = []
         for m in args.models.split(","):
-            s, depth = fit(c, m, args.out, args.init)
+            falloff = None
+            if m == "retroreflective":
+                falloff, sweep = choose_falloff(c, args.out)
+                sweeps.append((c, sweep))
+            s, depth = fit(c, m, args.out, args.init, falloff)
             floor = s.get("photon_noise_floor")
-            rows.append((c, m, s["relative_l2"], floor, s["seconds"]))
-            fits.append((m, depth, s["relative_l2"]))
+            rows.append((c, m, falloff, s["relative_l2"], floor, s["seconds"]))
+            name = m if falloff is None else f"retro, cos^{falloff}"
+            fits.append((name, depth, s["relative_l2"]))
             print(f"{c} {m}: relative L2 {s['relative_l2']:.3f} (floor {floor}), {s['seconds']:.0f} s",
                   flush=True)
         if args.docs:
@@ -157,12 +188,19 @@ def main(argv=None):
         os.makedirs(os.path.join(args.docs, "baselines"), exist_ok=True)
         with open(os.path.join(args.docs, "baselines", "lct_captures.md"), "w") as f:
             f.write("<!-- generated by python/studies/lct_captures.py; do not edit -->\n")
-            f.write("| capture | model | relative L2 | photon floor | L2 / floor | fit time (s) |\n")
-            f.write("|---|---|---|---|---|---|\n")
-            for c, m, l2, floor, sec in rows:
+            f.write("| capture | model | falloff m | relative L2 | photon floor | L2 / floor | fit time (s) |\n")
+            f.write("|---|---|---|---|---|---|---|\n")
+            for c, m, falloff, l2, floor, sec in rows:
                 ratio = f"{l2 / floor:.2f}" if floor else "n/a"
-                f.write(f"| {c} | {m} | {l2:.3f} | {floor:.3f} | {ratio} | {sec:.0f} |\n")
+                fm = "" if falloff is None else str(falloff)
+                f.write(f"| {c} | {m} | {fm} | {l2:.3f} | {floor:.3f} | {ratio} | {sec:.0f} |\n")
             f.write(f"\n(`umbra fit --init {args.init}`; fit time is all starts together.)\n")
+            if sweeps:
+                f.write("\nThe retroreflective model's falloff, fits from a plane (relative L2):\n\n")
+                f.write("| capture | " + " | ".join(f"m = {m}" for m in FALLOFFS) + " |\n")
+                f.write("|---|" + "---|" * len(FALLOFFS) + "\n")
+                for c, sweep in sweeps:
+                    f.write(f"| {c} | " + " | ".join(f"{sweep[m]:.3f}" for m in FALLOFFS) + " |\n")
 
 
 if __name__ == "__main__":

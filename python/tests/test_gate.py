@@ -114,3 +114,27 @@ def test_fit_and_torch_refuse_with_the_same_message(tmp_path, umbra_bin, name, t
         out = module()
         out.sum().backward()
     assert str(e.value) == expected
+
+
+def test_retro_falloff_is_checked_and_used(tmp_path):
+    """The retroreflector's angular falloff: a scene's `retro_falloff` dims the render by
+    cos^m of the entrance angle, and `umbra.fit(retro_falloff=...)` is checked by the same
+    gate as `umbra fit --retro-falloff`, with the Python name."""
+    retro = scene_toml(reflectance="retroreflective")
+    _, ideal = write_scene(tmp_path, retro)
+    steep = retro.replace('reflectance = "retroreflective"',
+                          'reflectance = "retroreflective"\nretro_falloff = 4')
+    _, dimmed = write_scene(tmp_path, steep)
+    h0, h4 = umbra.render(ideal, model="tri3"), umbra.render(dimmed, model="tri3")
+    ratio = h4.sum() / h0.sum()
+    # The square is turned away from every scan point by some degrees, not more than 40.
+    assert 0.34 < ratio < 1.0, ratio
+    measured = h0 * 1e3
+    e = py_error(lambda: umbra.fit(ideal, measured, retro_falloff=20.0, iters=1))
+    assert e is not None and "retro_falloff = 20: the angular falloff exponent is a number from 0 to 16" in e, e
+    _, lambertian = write_scene(tmp_path, scene_toml())
+    e = py_error(lambda: umbra.fit(lambertian, measured, retro_falloff=2.0, iters=1))
+    assert e is not None and "retro_falloff = 2 is for a retroreflective surface" in e, e
+    fits = [umbra.fit(ideal, measured, retro_falloff=m, iters=2) for m in (0.0, 4.0)]
+    assert all(np.isfinite(f["final_loss"]) for f in fits)
+    assert fits[0]["final_loss"] != fits[1]["final_loss"]

@@ -146,7 +146,7 @@ def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
         known_scale: bool = False, background: Optional[str] = None,
         jitter: Optional[float] = None, irf: Optional[str] = None,
         time_offset: Optional[float] = None, reflectance: Optional[str] = None,
-        retro_falloff: Optional[int] = None, ignore_before: Optional[float] = None, truth: bool = False,
+        retro_falloff: Optional[float] = None, ignore_before: Optional[float] = None, truth: bool = False,
         bin: Optional[Tuple[int, int]] = None, target_spp: int = 4096,
         threads: Optional[int] = None,
         progress: Optional[Callable[[Dict[str, Any]], Any]] = None,
@@ -173,7 +173,7 @@ def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
     plane, a sphere and a reconstruction's depth map, the LCT's for confocal captures, the
     backprojection's otherwise; keeps the lowest loss, a later start of the three within
     1 % of it winning). ``retro_falloff``: a retroreflective surface's angular falloff
-    exponent ``m`` (its return scaled by ``cos^m`` of the entrance angle; 0 to 4, default
+    exponent ``m`` (its return scaled by ``cos^m`` of the entrance angle; 0 to 16, default
     the scene object's ``retro_falloff``, else 0).
 
     Returns a dict: ``vertices`` (N, 3) float64 and ``triangles`` (F, 3) uint32, the

@@ -19,6 +19,8 @@ pub trait Real:
     fn v(self) -> f64;
     fn sqrt(self) -> Self;
     fn exp(self) -> Self;
+    /// `self^m` for a constant `m` (`self > 0`).
+    fn powc(self, m: f64) -> Self;
     fn erf(self) -> Self;
     /// `1 − erf`, precise in the tail.
     fn erfc(self) -> Self;
@@ -88,6 +90,10 @@ impl Real for f32 {
         f32::exp(self)
     }
     #[inline(always)]
+    fn powc(self, m: f64) -> Self {
+        f32::powf(self, m as f32)
+    }
+    #[inline(always)]
     fn erf(self) -> Self {
         libm::erff(self)
     }
@@ -113,6 +119,10 @@ impl Real for f64 {
     #[inline(always)]
     fn exp(self) -> Self {
         f64::exp(self)
+    }
+    #[inline(always)]
+    fn powc(self, m: f64) -> Self {
+        f64::powf(self, m)
     }
     #[inline(always)]
     fn erf(self) -> Self {
@@ -169,6 +179,11 @@ impl<T: Float, const N: usize> Real for Dual<T, N> {
     fn sqrt(self) -> Self {
         let s = self.v.sqrt();
         self.chain(s, T::c(0.5) / s)
+    }
+    #[inline(always)]
+    fn powc(self, m: f64) -> Self {
+        let p = self.v.powc(m);
+        self.chain(p, T::c(m) * p / self.v)
     }
     #[inline(always)]
     fn exp(self) -> Self {

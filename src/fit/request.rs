@@ -91,7 +91,7 @@ pub struct FitRequest {
     pub reflectance: Option<String>,
     /// A retroreflective surface's angular falloff exponent `m` (`cos^m θ`); default the
     /// scene's first hidden object's, or 0 with `reflectance`.
-    pub retro_falloff: Option<u32>,
+    pub retro_falloff: Option<f32>,
     /// Leave OPLs below this (m) out; default 0.72 m for LCT captures.
     pub ignore_before: Option<f32>,
     /// With a measurement: the scene's hidden objects are the truth (Chamfer reported).

@@ -68,7 +68,7 @@ pub struct HiddenTri {
     /// Retroreflective ([`crate::scene::Reflectance`]); Lambertian otherwise.
     pub retro: bool,
     /// A retroreflector's angular falloff exponent `m` (`cos^m θ`; 0 otherwise).
-    pub retro_falloff: u8,
+    pub retro_falloff: f32,
 }
 
 impl HiddenTri {

@@ -241,7 +241,7 @@ pub struct HiddenObject {
 }
 
 /// How a hidden surface reflects.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub enum Reflectance {
     /// Lambertian, `f = ρ/π`.
     #[default]
@@ -253,20 +253,21 @@ pub enum Reflectance {
     /// perfect retroreflector sends nothing to a sensor point away from the laser spot).
     ///
     /// `falloff` is the sheeting's angular falloff: the returned light is scaled by
-    /// `cos^m θ_x` (`m = falloff`, whole, 0 to [`MAX_RETRO_FALLOFF`]; `θ_x` the entrance
-    /// angle at the surface). Real retroreflective sheeting returns less light at
-    /// oblique entrance (its retroreflection coefficient roughly halves by 30–40°:
-    /// `m` ≈ 1–3); `m = 0` is the ideal retroreflector.
-    Retroreflective { falloff: u8 },
+    /// `cos^m θ_x` (`m = falloff`, 0 to [`MAX_RETRO_FALLOFF`]; `θ_x` the entrance angle
+    /// at the surface). Real retroreflective sheeting returns less light at oblique
+    /// entrance (its retroreflection coefficient roughly halves by 30–40°: `m` ≈ 2–4,
+    /// and the Stanford captures fit best with 4–8, docs/BASELINES.md); `m = 0` is the
+    /// ideal retroreflector.
+    Retroreflective { falloff: f32 },
 }
 
-/// The largest angular falloff exponent of [`Reflectance::Retroreflective`] (the kernels
-/// raise `cos θ` to a whole power by at most this many branch-free products).
-pub const MAX_RETRO_FALLOFF: u8 = 4;
+/// The largest angular falloff exponent of [`Reflectance::Retroreflective`] (`cos^16` is
+/// 0.5 at 16°: a narrower lobe than any sheeting's).
+pub const MAX_RETRO_FALLOFF: f32 = 16.0;
 
 impl Reflectance {
     /// The ideal retroreflector (no angular falloff).
-    pub const RETRO: Reflectance = Reflectance::Retroreflective { falloff: 0 };
+    pub const RETRO: Reflectance = Reflectance::Retroreflective { falloff: 0.0 };
 
     pub fn parse(s: &str) -> Option<Reflectance> {
         match s {
@@ -281,22 +282,22 @@ impl Reflectance {
     }
 
     /// The angular falloff exponent `m` (0 for Lambertian and the ideal retroreflector).
-    pub fn falloff(self) -> u8 {
+    pub fn falloff(self) -> f32 {
         match self {
             Reflectance::Retroreflective { falloff } => falloff,
-            Reflectance::Lambertian => 0,
+            Reflectance::Lambertian => 0.0,
         }
     }
 
     /// This reflectance with the falloff exponent `m` ([`MAX_RETRO_FALLOFF`] at most),
     /// or why not: `what` names the field in the message.
-    pub fn with_falloff(self, m: u32, what: &str) -> std::result::Result<Reflectance, String> {
+    pub fn with_falloff(self, m: f32, what: &str) -> std::result::Result<Reflectance, String> {
         match self {
-            _ if m > u32::from(MAX_RETRO_FALLOFF) => Err(format!(
-                "{what} = {m}: the angular falloff exponent is a whole number from 0 to {MAX_RETRO_FALLOFF}"
+            _ if !(0.0..=MAX_RETRO_FALLOFF).contains(&m) => Err(format!(
+                "{what} = {m}: the angular falloff exponent is a number from 0 to {MAX_RETRO_FALLOFF}"
             )),
-            Reflectance::Retroreflective { .. } => Ok(Reflectance::Retroreflective { falloff: m as u8 }),
-            Reflectance::Lambertian if m == 0 => Ok(self),
+            Reflectance::Retroreflective { .. } => Ok(Reflectance::Retroreflective { falloff: m }),
+            Reflectance::Lambertian if m == 0.0 => Ok(self),
             Reflectance::Lambertian => Err(format!(
                 "{what} = {m} is for a retroreflective surface, and this one is lambertian"
             )),

@@ -115,7 +115,7 @@ struct ObjectT {
     /// `lambertian` (default) or `retroreflective`.
     reflectance: Option<String>,
     /// A retroreflective surface's angular falloff exponent `m` (`cos^m θ`; default 0).
-    retro_falloff: Option<u32>,
+    retro_falloff: Option<f32>,
     #[serde(default)]
     transform: TransformT,
 }

@@ -39,7 +39,7 @@ pub struct TriParams<R> {
     /// Retroreflective (`tri3` only; [`crate::scene::Reflectance`]).
     pub retro: bool,
     /// Its angular falloff exponent (`tri3` only).
-    pub retro_falloff: u8,
+    pub retro_falloff: f32,
 }
 
 impl TriParams<f32> {

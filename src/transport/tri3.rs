@@ -73,7 +73,7 @@ pub struct Tri3Mesh {
     /// Per sub-triangle: retroreflective.
     pub retro: Vec<bool>,
     /// Per sub-triangle: a retroreflector's angular falloff exponent (`cos^m θ`).
-    pub retro_falloff: Vec<u8>,
+    pub retro_falloff: Vec<f32>,
     /// Per sub-triangle: area (m²).
     pub area: Vec<f32>,
     /// Per sub-triangle: centroid (curvature shift, `subtriangle` visibility).

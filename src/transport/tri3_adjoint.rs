@@ -503,7 +503,7 @@ mod tests {
                 2 => scene.objects[0].reflectance = crate::scene::Reflectance::RETRO,
                 3 => {
                     scene.objects[0].reflectance =
-                        crate::scene::Reflectance::Retroreflective { falloff: 3 }
+                        crate::scene::Reflectance::Retroreflective { falloff: 3.5 }
                 }
                 _ => {}
             }

@@ -97,8 +97,12 @@ pub fn pair_pulse<R: Real>(
             let brdf = parent.albedo_at(corner_bary[i]).s(FRAC_1_PI);
             w[i] = if parent.retro {
                 // The sheeting's angular falloff, cos^m θ_l = (|p_l| / r_l)^m.
-                let cos = p_l.abs() / r2_l.sqrt();
-                let falloff = (0..parent.retro_falloff).fold(R::c(1.0), |f, _| f * cos);
+                let m = f64::from(parent.retro_falloff);
+                let falloff = if m > 0.0 {
+                    (p_l.abs() / r2_l.sqrt()).powc(m)
+                } else {
+                    R::c(1.0)
+                };
                 brdf * plane * c_l / (r2_l * r2_l) * falloff
             } else {
                 let r4 = r2_l * r2_s;

@@ -58,7 +58,7 @@ pub struct TriBlock {
     pub two_sided: Lanes,
     /// 1 where the triangle is retroreflective (confocal only), else 0.
     pub retro: Lanes,
-    /// A retroreflector's angular falloff exponent `m` (`cos^m θ_x`, whole), else 0.
+    /// A retroreflector's angular falloff exponent `m` (`cos^m θ_x`), else 0.
     pub falloff: Lanes,
 }
 
@@ -320,7 +320,7 @@ pub fn pack(
     area: &[f32],
     two_sided: &[bool],
     retro: &[bool],
-    falloff: &[u8],
+    falloff: &[f32],
 ) -> (Vec<TriBlock>, [Vec<f64>; 3]) {
     let count = corners.len();
     let corners: Vec<_> = corners.collect();
@@ -357,7 +357,7 @@ pub fn pack(
                 d,
                 0.0,
                 false,
-                (false, 0),
+                (false, 0.0),
             );
         }
     }
@@ -376,7 +376,7 @@ fn put(
     plane: f32,
     area: f32,
     two_sided: bool,
-    (retro, falloff): (bool, u8),
+    (retro, falloff): (bool, f32),
 ) {
     for i in 0..3 {
         for (axis, x) in (v[i] - o).to_array().into_iter().enumerate() {
@@ -387,7 +387,7 @@ fn put(
     }
     b.plane[j] = plane;
     b.retro[j] = if retro { 1.0 } else { 0.0 };
-    b.falloff[j] = if retro { f32::from(falloff) } else { 0.0 };
+    b.falloff[j] = if retro { falloff } else { 0.0 };
     b.area[j] = area;
     b.two_sided[j] = if two_sided { 1.0 } else { 0.0 };
 }

@@ -251,19 +251,21 @@ impl<N: Lane> Legs<N> {
         };
         N::select(self.front(), w, N::splat(0.0))
     }
+}
 
+impl Legs<f32> {
     /// A retroreflector's angular falloff at this corner, `cos^m θ_l = (|p_l| / r_l)^m`
-    /// (`p_l` the plane term of [`Plane`], `m = falloff` whole, 0 to
+    /// (`p_l` the plane term of [`Plane`], `m = falloff`, 0 to
     /// [`crate::scene::MAX_RETRO_FALLOFF`]; 1 where `m = 0`). Its derivative, for the
-    /// adjoint: `∂ ln/∂v = m d_l / r_l²` and `∂ ln/∂p_l = m / p_l`.
+    /// adjoint: `∂ ln/∂v = m d_l / r_l²` and `∂ ln/∂p_l = m / p_l`. (One lane: the
+    /// forward's; the adjoint's reverse reads the weight it kept.)
     #[inline(always)]
-    pub fn falloff(&self, p_l: N, falloff: N) -> N {
-        let cos = p_l.abs() / self.r_l;
-        let mut f = N::splat(1.0);
-        for k in 0..crate::scene::MAX_RETRO_FALLOFF {
-            f = N::select(falloff.gt(N::splat(f32::from(k) + 0.5)), f * cos, f);
+    pub fn falloff(&self, p_l: f32, falloff: f32) -> f32 {
+        if falloff > 0.0 {
+            (p_l.abs() / self.r_l).powf(falloff)
+        } else {
+            1.0
         }
-        f
     }
 }
 

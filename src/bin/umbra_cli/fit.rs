@@ -80,10 +80,10 @@ pub struct FitArgs {
     #[arg(long)]
     pub reflectance: Option<String>,
     /// A retroreflective surface's angular falloff exponent m: its return scaled by
-    /// cos^m of the entrance angle (whole, 0 to 4; default the scene object's
+    /// cos^m of the entrance angle (0 to 16; default the scene object's
     /// `retro_falloff`, else 0, the ideal retroreflector).
     #[arg(long)]
-    pub retro_falloff: Option<u32>,
+    pub retro_falloff: Option<f32>,
     /// Samples per measurement of the demonstration target (no `--measured`).
     #[arg(long, default_value_t = 4096)]
     pub target_spp: u32,

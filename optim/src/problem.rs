@@ -26,6 +26,13 @@ use std::rc::Rc;
 /// it `f32` positions lose their millimetres).
 pub const MAX_COORDINATE: f64 = 1e6;
 
+/// How far outside its box a decoded vertex may sit, in m, and still count as inside.
+/// A stage starts from the last one's mesh, whose vertices may lie on the box (a step
+/// projected onto it); the large-steps round trip `decode(encode(x))` moves them by the
+/// conjugate-gradient solve's residual (~1e-11 m). A micrometre is far below any scene's
+/// scale and far above that residual.
+pub const BOUND_SLACK: f64 = 1e-6;
+
 /// What a renderer gives the fit: the loss of a mesh against the measurement and its
 /// gradient.
 pub trait MeshObjective {
@@ -232,11 +239,9 @@ impl MeshProblem {
                 .collect();
         }
         let [lo, hi] = self.bounds;
-        if let Some(i) = mesh
-            .vertices
-            .iter()
-            .position(|p| (0..3).any(|k| !(p[k] >= lo[k] && p[k] <= hi[k])))
-        {
+        if let Some(i) = mesh.vertices.iter().position(|p| {
+            (0..3).any(|k| !(p[k] >= lo[k] - BOUND_SLACK && p[k] <= hi[k] + BOUND_SLACK))
+        }) {
             let p = mesh.vertices[i];
             return Err(format!(
                 "the step put vertex {i} at ({:.3e}, {:.3e}, {:.3e}) m, outside [{:.3}, {:.3}] x [{:.3}, {:.3}] x [{:.3}, {:.3}] m ({}): the step size (lr) is far too large",

@@ -117,3 +117,53 @@ fn projection_clamps_the_albedo_block_only() {
     assert_eq!(theta[0], 7.0);
     assert_eq!(&theta[1..3 * n], &positions[1..]);
 }
+
+/// [`Smooth`] seeing nothing outside a point at the origin: the problem's box is the
+/// initial mesh's own.
+struct Boxed;
+
+impl MeshObjective for Boxed {
+    fn evaluate(&mut self, mesh: &Mesh) -> Result<Evaluation, String> {
+        Smooth.evaluate(mesh)
+    }
+    fn bounds(&self) -> Option<([[f64; 3]; 2], String)> {
+        Some(([[0.0; 3]; 2], "a point".into()))
+    }
+}
+
+/// A stage starts from the last one's mesh, whose vertices may sit on the box (a step
+/// projected onto it); the large-steps round trip `decode(encode(x))` moves them by the
+/// solve's residual (~1e-12 m), which must not count as leaving the box (a 600-iteration
+/// LCT fit stopped at its third stage on exactly this: "the initial mesh cannot be
+/// evaluated", a vertex at the far bound).
+#[test]
+fn a_mesh_on_its_box_decodes_after_the_large_steps_round_trip() {
+    let mut mesh = common::sheet(6);
+    for (i, p) in mesh.vertices.iter_mut().enumerate() {
+        p[2] = 0.3 + 0.2 * (1.3 * i as f64).sin(); // many vertices at the box's faces
+    }
+    let problem = MeshProblem::new(
+        Box::new(Boxed),
+        &mesh,
+        ProblemSettings {
+            large_steps: 2.0,
+            laplacian: 0.0,
+            fit_positions: true,
+            fit_values: false,
+            value_scale: 1.0,
+        },
+    );
+    let decoded = problem.decode(&problem.encode(&mesh)).unwrap();
+    let moved = decoded
+        .vertices
+        .iter()
+        .zip(&mesh.vertices)
+        .flat_map(|(a, b)| (0..3).map(move |k| (a[k] - b[k]).abs()))
+        .fold(0.0, f64::max);
+    assert!(moved < 1e-9, "the round trip moved a vertex by {moved:e} m");
+    // A step well outside the box is still refused.
+    let mut theta = problem.encode(&mesh);
+    theta.iter_mut().for_each(|v| *v *= 2.0);
+    let e = problem.decode(&theta).unwrap_err();
+    assert!(e.contains("outside") && e.contains("a point"), "{e}");
+}

@@ -182,6 +182,10 @@ pub fn fit<'py>(
     d.set_item("vertices", surface.get_item("vertices")?)?;
     d.set_item("triangles", surface.get_item("triangles")?)?;
     d.set_item("full_mesh", mesh_dict(py, &report.full_mesh)?)?;
+    d.set_item(
+        "face_determination",
+        report.face_determination.clone().into_pyarray(py),
+    )?;
     let h = &report.history;
     let history = PyDict::new(py);
     let col = |f: &dyn Fn(&LossRecord) -> f64| h.iter().map(f).collect::<Vec<f64>>();
@@ -211,6 +215,7 @@ pub fn fit<'py>(
     d.set_item("seconds", summary.seconds)?;
     d.set_item("rejected_steps", summary.rejected_steps)?;
     d.set_item("unsupported_faces", summary.unsupported_faces)?;
+    d.set_item("undetermined_faces", summary.undetermined_faces)?;
     d.set_item("init", &summary.init)?;
     let starts = PyDict::new(py);
     for st in &summary.starts {

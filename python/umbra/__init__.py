@@ -177,9 +177,12 @@ def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
     the scene object's ``retro_falloff``, else 0).
 
     Returns a dict: ``vertices`` (N, 3) float64 and ``triangles`` (F, 3) uint32, the
-    fitted surface (faces fitted dark, and faces no measurement lights and sees, dropped,
-    as mesh.obj; ``unsupported_faces`` counts the latter); ``full_mesh`` (every face,
-    with ``vertex_albedo``); ``history`` (numpy arrays ``iteration``, ``stage``, ``loss``
+    fitted surface (faces fitted dark, faces no measurement lights and sees, and faces
+    whose signal is within the noise, dropped, as mesh.obj; ``unsupported_faces`` and
+    ``undetermined_faces`` count the latter two); ``full_mesh`` (every face, with
+    ``vertex_albedo``); ``face_determination`` (F_all,) float64 per face of
+    ``full_mesh``: its cluster's signal-to-noise over the noise its parameters could
+    absorb (below 1: undetermined; 0: not tested, dark or unsupported); ``history`` (numpy arrays ``iteration``, ``stage``, ``loss``
     (total), ``data_loss``, ``smoothness``); ``final_loss`` (``‖sH + b − M‖² / ‖M‖²`` at
     full resolution) and ``relative_l2``; ``scale``, ``background``, ``time_offset``;
     ``render`` (the fitted transient ``sH + b``, float32, the measurement's layout) and

@@ -15,9 +15,12 @@
 //! - [`starts`]: `--init auto`, a fit from each of several starts, one kept;
 //! - [`support`]: which fitted faces some measurement lights and sees (the rest are
 //!   left out of `mesh.obj`);
+//! - [`determined`]: which fitted faces return a signal the data can tell from noise
+//!   (the rest are left out of `mesh.obj`);
 //! - [`run`]: the whole fit with its outputs (mesh, loss curve, transients side by side,
 //!   checkpoints).
 
+pub mod determined;
 pub mod init;
 pub mod intensity;
 pub mod metrics;

@@ -148,9 +148,18 @@ impl UmbraObjective {
         Ok((f.render, f.loss, f.intensity, f.time_offset_opl))
     }
 
-    /// The scene with `mesh` as its hidden object, its render (leading bins left out)
-    /// and the loss with its adjoint.
-    fn forward(&self, mesh: &Mesh) -> crate::Result<Forward> {
+    /// `Z K_δ H` of `mesh` at a given time offset (OPL, m): the render as the loss sees
+    /// it before scale and background, with no intensity or offset fitted (for a part
+    /// of a fitted mesh at the whole's offset: `fit::determined`).
+    pub fn response(&self, mesh: &Mesh, time_offset_opl: f64) -> crate::Result<Vec<f32>> {
+        let (_, _, _, raw) = self.raw(mesh)?;
+        let shift = time_offset_opl / self.scene.film.bin_width_opl as f64;
+        Ok(self.comparator().response(&raw, shift))
+    }
+
+    /// The scene with `mesh` as its hidden object, its geometry, the render options and
+    /// the raw render.
+    fn raw(&self, mesh: &Mesh) -> crate::Result<(Scene, SceneGeometry, RenderOptions, Vec<f32>)> {
         let mut scene = self.scene.clone();
         scene.objects = vec![hidden_object(
             mesh,
@@ -167,6 +176,13 @@ impl UmbraObjective {
             opts.seed = mesh_seed(self.options.seed, mesh);
         }
         let raw = Renderer::new(&scene, &geom, &opts)?.render(None)?.data;
+        Ok((scene, geom, opts, raw))
+    }
+
+    /// The scene with `mesh` as its hidden object, its render (leading bins left out)
+    /// and the loss with its adjoint.
+    fn forward(&self, mesh: &Mesh) -> crate::Result<Forward> {
+        let (scene, geom, opts, raw) = self.raw(mesh)?;
         let c = self.comparator().compare(&raw, &self.measured);
         let (render, loss, adjoint, intensity) = (c.fitted, c.loss, c.adjoint, c.intensity);
         let time_offset_opl = c.offset_bins * scene.film.bin_width_opl as f64;

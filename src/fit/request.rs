@@ -187,6 +187,9 @@ pub struct Summary {
     /// Faces left out of mesh.obj because no measurement lights and sees them
     /// (`fit::support`; the dark ones are not counted).
     pub unsupported_faces: usize,
+    /// Faces left out of mesh.obj because their signal is within the noise
+    /// (`fit::determined`; the dark and unsupported ones are not counted).
+    pub undetermined_faces: usize,
     /// The start used (`auto: NAME` when `--init auto` chose).
     pub init: String,
     /// `--init auto`: every start's final loss and time (each fit is in `start-NAME/`).
@@ -556,6 +559,12 @@ pub fn run(
             report.unsupported_faces
         ));
     }
+    if report.undetermined_faces > 0 {
+        log(&format!(
+            "{} faces left out of mesh.obj: their signal is within the noise of the bins it lands in, so the data do not determine them (fit::determined; mesh_all.obj keeps them)",
+            report.undetermined_faces
+        ));
+    }
     let mut summary = Summary {
         iterations: report.history.len(),
         seconds: report.seconds,
@@ -568,6 +577,7 @@ pub fn run(
         faces: report.mesh.faces.len(),
         rejected_steps: report.rejected_steps,
         unsupported_faces: report.unsupported_faces,
+        undetermined_faces: report.undetermined_faces,
         init: if auto {
             format!("auto: {chosen_name}")
         } else {

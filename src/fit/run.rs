@@ -1,8 +1,9 @@
 //! A whole fit: the initial mesh, the schedule's stages through `optim::fit` with
 //! Umbra's renderer as the objective, and the outputs in the output directory:
 //!
-//! - `mesh.obj`: the fitted surface (world space, m; faces fitted dark, and faces no
-//!   measurement lights and sees, dropped), and
+//! - `mesh.obj`: the fitted surface (world space, m; faces fitted dark, faces no
+//!   measurement lights and sees, and faces whose signal is within the noise, dropped),
+//!   and
 //!   `mesh_all.obj` with every face and its albedo as vertex colour;
 //! - `loss.csv` and `loss.png`: the loss per iteration (data term and total), stage
 //!   boundaries marked;
@@ -15,6 +16,7 @@
 //!   identity ([`identity`]): a resume with another scene, measurement, model or option
 //!   is refused, naming what differs.
 
+use super::determined::face_determination;
 use super::init::{depth_from_data, plane, sphere};
 use super::intensity::{Intensity, IntensityModel};
 use super::objective::{first_fitted_bin, hidden_object, zero_leading_bins, UmbraObjective};
@@ -83,8 +85,9 @@ pub struct FitConfig {
 #[derive(Clone, Debug)]
 pub struct FitReport {
     /// The fitted surface: [`FitReport::full_mesh`] without faces whose fitted albedo
-    /// is below [`DARK`] of the brightest and without faces no measurement lights and
-    /// sees ([`super::support`]).
+    /// is below [`DARK`] of the brightest, without faces no measurement lights and
+    /// sees ([`super::support`]) and without faces whose signal is within the noise
+    /// ([`super::determined`]).
     pub mesh: Mesh,
     pub full_mesh: Mesh,
     pub history: Vec<LossRecord>,
@@ -100,6 +103,13 @@ pub struct FitReport {
     /// Faces left out of `mesh` because no measurement lights and sees them
     /// ([`super::support`]), besides the dark ones.
     pub unsupported_faces: usize,
+    /// Faces left out of `mesh` because their signal is within the noise
+    /// ([`super::determined`]), besides the dark and unsupported ones.
+    pub undetermined_faces: usize,
+    /// Per face of [`FitReport::full_mesh`]: its cluster's signal-to-noise over the
+    /// noise its parameters could absorb (below 1: undetermined, left out of `mesh`; 0:
+    /// not tested, left out as dark or unsupported). See [`super::determined`].
+    pub face_determination: Vec<f64>,
     /// The final mesh's fitted transient at full resolution, `s K H + b` (scale,
     /// detector response and background applied; bins left out of the fit are zero), in
     /// the measurement's layout.
@@ -353,8 +363,17 @@ pub fn fit(
         other => Error::Invalid(format!("fit: {other}")),
     })?;
     let mut files = Vec::new();
-    // Faces the data drove dark, and faces no measurement lights and sees (`support`),
-    // are not surface the data support: mesh.obj drops them, mesh_all.obj keeps all.
+    // The final mesh at full resolution.
+    let full = Stage {
+        time_downsample: 1,
+        scan_downsample: 1,
+        ..last_stage.clone()
+    };
+    let objective = factory.build(&full)?;
+    let (render, final_loss, intensity, time_offset_opl) = objective.render(&outcome.mesh)?;
+    // Faces the data drove dark, faces no measurement lights and sees (`support`), and
+    // faces whose signal the data cannot tell from noise (`determined`) are not surface
+    // the data support: mesh.obj drops them, mesh_all.obj keeps all.
     let mut fitted = base.clone();
     fitted.objects = vec![hidden_object(
         &outcome.mesh,
@@ -369,11 +388,29 @@ pub fn fit(
         .zip(&bright)
         .filter(|(s, b)| **b && !**s)
         .count();
-    let keep: Vec<bool> = supported
+    let candidates: Vec<bool> = supported
         .iter()
         .zip(&bright)
         .map(|(s, b)| *s && *b)
         .collect();
+    let face_determination = face_determination(
+        &objective,
+        &outcome.mesh,
+        &candidates,
+        &render,
+        &intensity,
+        time_offset_opl,
+    )?;
+    let keep: Vec<bool> = candidates
+        .iter()
+        .zip(&face_determination)
+        .map(|(c, d)| *c && *d >= 1.0)
+        .collect();
+    let undetermined_faces = candidates
+        .iter()
+        .zip(&keep)
+        .filter(|(c, k)| **c && !**k)
+        .count();
     let surface = outcome.mesh.with_faces(&keep);
     for (name, mesh) in [("mesh.obj", &surface), ("mesh_all.obj", &outcome.mesh)] {
         let path = out.join(name);
@@ -381,14 +418,6 @@ pub fn fit(
         files.push(path);
     }
     files.extend(write_loss(out, &outcome.history)?);
-    // The final mesh at full resolution.
-    let full = Stage {
-        time_downsample: 1,
-        scan_downsample: 1,
-        ..last_stage.clone()
-    };
-    let objective = factory.build(&full)?;
-    let (render, final_loss, intensity, time_offset_opl) = objective.render(&outcome.mesh)?;
     files.push(write_transients(out, &base, measured, &render, &intensity)?);
     // The picture is a by-product: the fit's results must not be lost over it.
     let picture = out.join("reconstruction.png");
@@ -420,6 +449,8 @@ pub fn fit(
         time_offset_opl,
         rejected_steps: outcome.rejected_steps,
         unsupported_faces,
+        undetermined_faces,
+        face_determination,
         files,
     })
 }

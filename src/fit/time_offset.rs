@@ -57,6 +57,12 @@ impl Comparator {
         }
     }
 
+    /// `Z K_δ H`: the render as compared at shift `shift` (bins), without fitting the
+    /// intensity or the shift.
+    pub fn response(&self, raw: &[f32], shift: f64) -> Vec<f32> {
+        self.fitted(raw, shift).0
+    }
+
     /// `Z K_δ H`: the render as compared at shift `shift` (bins), and the kernel.
     fn fitted(&self, raw: &[f32], shift: f64) -> (Vec<f32>, JitterKernel) {
         let kernel = self.kernel(shift);

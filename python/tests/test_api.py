@@ -249,6 +249,13 @@ def test_fit_runs_the_cli_fit_on_a_tiny_scene(tmp_path: Path):
     # The final render is the fitted mesh's: its loss is the one reported.
     r, m = out["render"].astype(np.float64), out["measured"].astype(np.float64)
     assert ((r - m) ** 2).sum() / (m ** 2).sum() == pytest.approx(out["final_loss"], rel=1e-3)
+    # Each face of the full mesh has its determination (0 where dark or unsupported);
+    # mesh.obj's faces are the ones at 1 or more, dark and unsupported left aside.
+    det = out["face_determination"]
+    assert det.dtype == np.float64 and det.shape == (len(out["full_mesh"]["triangles"]),)
+    assert not np.isnan(det).any() and (det >= 0).all()
+    assert len(out["triangles"]) <= int((det >= 1).sum())
+    assert isinstance(out["undetermined_faces"], int) and out["undetermined_faces"] >= 0
     names = {Path(f).name for f in out["files"]}
     assert {"mesh.obj", "loss.csv", "loss.png", "transients.png"} <= names
     assert (tmp_path / "fit" / "summary.toml").is_file()

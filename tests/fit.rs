@@ -72,6 +72,7 @@ fn config(schedule: Schedule) -> FitConfig {
         time_offset_max_opl: 0.0,
         irf: None,
         reflectance: Default::default(),
+        photon_counts: None,
     }
 }
 

@@ -182,10 +182,14 @@ pub fn fit<'py>(
     d.set_item("vertices", surface.get_item("vertices")?)?;
     d.set_item("triangles", surface.get_item("triangles")?)?;
     d.set_item("full_mesh", mesh_dict(py, &report.full_mesh)?)?;
-    d.set_item(
-        "face_determination",
-        report.face_determination.clone().into_pyarray(py),
-    )?;
+    if report.face_determination.is_empty() {
+        d.set_item("face_determination", py.None())?;
+    } else {
+        d.set_item(
+            "face_determination",
+            report.face_determination.clone().into_pyarray(py),
+        )?;
+    }
     let h = &report.history;
     let history = PyDict::new(py);
     let col = |f: &dyn Fn(&LossRecord) -> f64| h.iter().map(f).collect::<Vec<f64>>();

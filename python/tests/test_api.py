@@ -249,13 +249,17 @@ def test_fit_runs_the_cli_fit_on_a_tiny_scene(tmp_path: Path):
     # The final render is the fitted mesh's: its loss is the one reported.
     r, m = out["render"].astype(np.float64), out["measured"].astype(np.float64)
     assert ((r - m) ** 2).sum() / (m ** 2).sum() == pytest.approx(out["final_loss"], rel=1e-3)
-    # Each face of the full mesh has its determination (0 where dark or unsupported);
-    # mesh.obj's faces are the ones at 1 or more, dark and unsupported left aside.
-    det = out["face_determination"]
-    assert det.dtype == np.float64 and det.shape == (len(out["full_mesh"]["triangles"]),)
+    # A render is not photon counts: no noise model, nothing left out for noise.
+    assert out["face_determination"] is None and out["undetermined_faces"] == 0
+    # Photon counts: each face of the full mesh has its determination (0 where dark or
+    # unsupported); mesh.obj's faces are among the ones at 1 or more.
+    counts = np.round(target / target.max() * 200.0).astype(np.float32)
+    c = umbra.fit(moved, counts, init="scene", schedule=[dict(iters=2, solver="adam", lr=0.004)])
+    det = c["face_determination"]
+    assert det.dtype == np.float64 and det.shape == (len(c["full_mesh"]["triangles"]),)
     assert not np.isnan(det).any() and (det >= 0).all()
-    assert len(out["triangles"]) <= int((det >= 1).sum())
-    assert isinstance(out["undetermined_faces"], int) and out["undetermined_faces"] >= 0
+    assert len(c["triangles"]) <= int((det >= 1).sum())
+    assert isinstance(c["undetermined_faces"], int) and c["undetermined_faces"] >= 0
     names = {Path(f).name for f in out["files"]}
     assert {"mesh.obj", "loss.csv", "loss.png", "transients.png"} <= names
     assert (tmp_path / "fit" / "summary.toml").is_file()

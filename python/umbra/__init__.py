@@ -181,8 +181,9 @@ def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
     whose signal is within the noise, dropped, as mesh.obj; ``unsupported_faces`` and
     ``undetermined_faces`` count the latter two); ``full_mesh`` (every face, with
     ``vertex_albedo``); ``face_determination`` (F_all,) float64 per face of
-    ``full_mesh``: its cluster's signal-to-noise over the noise its parameters could
-    absorb (below 1: undetermined; 0: not tested, dark or unsupported); ``history`` (numpy arrays ``iteration``, ``stage``, ``loss``
+    ``full_mesh``: its cluster's signal-to-noise over the photon noise its parameters
+    could absorb (below 1: undetermined; 0: not tested, dark or unsupported), or None
+    when the measurement is not photon counts (nothing is left out for noise then); ``history`` (numpy arrays ``iteration``, ``stage``, ``loss``
     (total), ``data_loss``, ``smoothness``); ``final_loss`` (``‖sH + b − M‖² / ‖M‖²`` at
     full resolution) and ``relative_l2``; ``scale``, ``background``, ``time_offset``;
     ``render`` (the fitted transient ``sH + b``, float32, the measurement's layout) and

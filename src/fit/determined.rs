@@ -9,13 +9,18 @@
 //! compared with drop such surface by thresholding their volume's intensity; `mesh.obj`
 //! drops it by a test in the data's own units.
 //!
+//! The test needs the noise, so it runs on photon counts only (Poisson: `Var M_i = λ_i`,
+//! estimated by the counts averaged over [`SMOOTH_BINS`] neighbouring bins, at least one
+//! count; over `n²` for `n x n` averaged scan blocks). Not the residual: early in a fit,
+//! or where the model is wrong, the residual is mostly misfit, and counted as noise it
+//! calls true surface undetermined (a short sphere fit lost a third of its seen surface
+//! that way). A render or data of unknown noise keep every face.
+//!
 //! The faces kept so far are cut into up to [`CLUSTERS`] clusters (k-means on their
 //! centroids, farthest-point seeds: deterministic). For a cluster `c`, its own part of
 //! the fitted transient is `h_c = Z K H(all) − Z K H(all but c)` at the fit's time offset
 //! (the scene's visibility, so occlusion by and of the rest counts). With the fitted
-//! scale `s`, the residual `r = s Z K H + b − M`, and `var_i` the residual squared
-//! averaged over [`SMOOTH_BINS`] neighbouring bins (the noise: Poisson counts and model
-//! error alike),
+//! scale `s` and the noise variance `var_i`,
 //!
 //! ```text
 //!   SNR_c = s² |h_c|² / ( Σ_i h_ci² var_i / |h_c|² ),
@@ -25,8 +30,7 @@
 //! free parameters absorbs about `k` units of it; a face of a triangle mesh carries about
 //! half a vertex, two parameters (three coordinates and an albedo per vertex). A cluster of
 //! `n` faces whose `SNR_c` is under [`NOISE_UNITS_PER_FACE`]` · n` (twice that count, a
-//! margin for the residual under-estimating noise the fit absorbed) says no more than the
-//! noise, and its faces are undetermined.
+//! margin) says no more than the noise, and its faces are undetermined.
 //!
 //! Where it fails: it cannot tell undetermined surface that happens to be right (a sphere
 //! start's true grazing sides, on a sphere) from undetermined surface that is wrong (the
@@ -40,7 +44,7 @@ use optim::Mesh;
 
 /// Clusters the kept faces are cut into.
 pub const CLUSTERS: usize = 40;
-/// Bins the residual's square is averaged over (centred) for the noise variance.
+/// Bins the counts are averaged over (centred) for the Poisson variance.
 pub const SMOOTH_BINS: usize = 9;
 /// Noise units a face's parameters may absorb: a cluster of `n` faces is determined when
 /// its SNR is at least this times `n`.
@@ -50,7 +54,8 @@ const KMEANS_ITERS: usize = 30;
 
 /// Per face of the fitted mesh: its cluster's SNR over [`NOISE_UNITS_PER_FACE`] times the
 /// cluster's face count (below 1: undetermined); 0 for faces not tested (left out before:
-/// dark or unsupported). Infinite where the residual along a cluster's signal is zero.
+/// dark or unsupported). `objective.measured` is photon counts averaged over
+/// `scan_block x scan_block` scan points (1: not averaged).
 pub fn face_determination(
     objective: &UmbraObjective,
     mesh: &Mesh,
@@ -58,6 +63,7 @@ pub fn face_determination(
     fitted: &[f32],
     intensity: &Intensity,
     time_offset_opl: f64,
+    scan_block: u32,
 ) -> crate::Result<Vec<f64>> {
     let bins = objective.scene.film.temporal_bins as usize;
     let first = objective.first_bin;
@@ -68,20 +74,7 @@ pub fn face_determination(
         return Ok(ratio);
     }
     let s = intensity.scale;
-    let residual: Vec<f64> = fitted
-        .iter()
-        .zip(measured)
-        .enumerate()
-        .map(|(i, (&h, &m))| {
-            let t = i % bins;
-            if t < first {
-                0.0
-            } else {
-                s * h as f64 + intensity.background_at(t) - m as f64
-            }
-        })
-        .collect();
-    let var = smoothed_square(&residual, bins, SMOOTH_BINS);
+    let var = poisson_variance(measured, bins, first, scan_block);
     let centroids: Vec<[f64; 3]> = faces
         .iter()
         .map(|&f| {
@@ -118,15 +111,19 @@ pub fn face_determination(
     Ok(ratio)
 }
 
-/// `x²` averaged over `width` bins centred on each bin of each `bins`-long row (bins
-/// past a row's ends count as zero, the average is over `width` regardless).
-fn smoothed_square(x: &[f64], bins: usize, width: usize) -> Vec<f64> {
-    let half = width / 2;
-    let mut out = vec![0.0; x.len()];
-    for (row, o) in x.chunks(bins).zip(out.chunks_mut(bins)) {
-        for (t, v) in o.iter_mut().enumerate() {
+/// Poisson variance per bin of counts averaged over `n x n` scan blocks: the mean of
+/// the counts over [`SMOOTH_BINS`] bins centred on each bin of each `bins`-long row
+/// (bins past a row's ends count as zero), summed over the block, at least one count,
+/// over `n⁴` (`Var(Σ/n²) = λ_sum / n⁴`); 0 in the bins before `first` (not fitted).
+fn poisson_variance(measured: &[f32], bins: usize, first: usize, n: u32) -> Vec<f64> {
+    let half = SMOOTH_BINS / 2;
+    let block = (n.max(1) as f64).powi(2);
+    let mut out = vec![0.0; measured.len()];
+    for (row, o) in measured.chunks(bins).zip(out.chunks_mut(bins)) {
+        for (t, v) in o.iter_mut().enumerate().skip(first) {
             let (lo, hi) = (t.saturating_sub(half), (t + half + 1).min(bins));
-            *v = row[lo..hi].iter().map(|r| r * r).sum::<f64>() / width as f64;
+            let mean = row[lo..hi].iter().map(|&m| m as f64).sum::<f64>() / SMOOTH_BINS as f64;
+            *v = (mean * block).max(1.0) / (block * block);
         }
     }
     out
@@ -196,9 +193,14 @@ mod tests {
     }
 
     #[test]
-    fn smoothing_averages_the_square_within_each_row() {
-        let x = [0.0, 3.0, 0.0, 0.0, 1.0, 0.0];
-        let v = smoothed_square(&x, 3, 3);
-        assert_eq!(v, vec![3.0, 3.0, 3.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0]);
+    fn the_variance_is_the_smoothed_counts_of_a_block() {
+        let m = [0.0, 9.0, 0.0, 0.0, 0.0, 0.0];
+        // rows of 3, no averaging: 9 counts over SMOOTH_BINS, at least one count
+        let v = poisson_variance(&m, 3, 0, 1);
+        assert_eq!(v[0], 1.0);
+        assert_eq!(v[3..], [1.0, 1.0, 1.0]);
+        let v = poisson_variance(&[0.0, 90.0, 0.0], 3, 1, 2);
+        assert_eq!(v[0], 0.0); // before the first fitted bin
+        assert_eq!(v[1], 90.0 / SMOOTH_BINS as f64 * 4.0 / 16.0);
     }
 }

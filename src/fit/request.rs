@@ -522,6 +522,7 @@ pub fn run(
         irf,
         time_offset_max_opl,
         reflectance,
+        photon_counts: counts.then_some(bin.1),
     };
     let AutoFit {
         name: chosen_name,

@@ -79,6 +79,11 @@ pub struct FitConfig {
     pub time_offset_max_opl: f64,
     /// How the fitted surface reflects.
     pub reflectance: crate::scene::Reflectance,
+    /// The measurement is photon counts whose `n x n` scan blocks were averaged:
+    /// `Some(n)` (Poisson noise, `Var M = M / n²`). Faces whose signal is within that
+    /// noise are left out of `mesh.obj` ([`super::determined`]); `None` (a render, data of
+    /// unknown noise): no face is left out for it.
+    pub photon_counts: Option<u32>,
 }
 
 /// What a fit produced.
@@ -108,7 +113,8 @@ pub struct FitReport {
     pub undetermined_faces: usize,
     /// Per face of [`FitReport::full_mesh`]: its cluster's signal-to-noise over the
     /// noise its parameters could absorb (below 1: undetermined, left out of `mesh`; 0:
-    /// not tested, left out as dark or unsupported). See [`super::determined`].
+    /// not tested, left out as dark or unsupported). See [`super::determined`]. Empty
+    /// when the measurement is not photon counts (no noise model: nothing left out).
     pub face_determination: Vec<f64>,
     /// The final mesh's fitted transient at full resolution, `s K H + b` (scale,
     /// detector response and background applied; bins left out of the fit are zero), in
@@ -393,18 +399,22 @@ pub fn fit(
         .zip(&bright)
         .map(|(s, b)| *s && *b)
         .collect();
-    let face_determination = face_determination(
-        &objective,
-        &outcome.mesh,
-        &candidates,
-        &render,
-        &intensity,
-        time_offset_opl,
-    )?;
+    let face_determination = match cfg.photon_counts {
+        Some(n) => face_determination(
+            &objective,
+            &outcome.mesh,
+            &candidates,
+            &render,
+            &intensity,
+            time_offset_opl,
+            n,
+        )?,
+        None => Vec::new(),
+    };
     let keep: Vec<bool> = candidates
         .iter()
-        .zip(&face_determination)
-        .map(|(c, d)| *c && *d >= 1.0)
+        .enumerate()
+        .map(|(f, c)| *c && face_determination.get(f).is_none_or(|d| *d >= 1.0))
         .collect();
     let undetermined_faces = candidates
         .iter()

@@ -15,6 +15,7 @@
 mod fit;
 mod options;
 mod scene;
+mod shards;
 mod validation;
 
 use numpy::ndarray::ArrayD;
@@ -235,6 +236,17 @@ fn grad<'py>(
         let g = umbra::adjoint::gradient(s, &geom, &opts, &adj, Some(&**progress))?;
         Ok((value, primal, g))
     })?;
+    let out = gradient_dict(py, g)?;
+    out.set_item("loss", value)?;
+    match primal {
+        Some(h) => out.set_item("render", h.data.into_pyarray(py).reshape(h.shape)?)?,
+        None => out.set_item("render", py.None())?,
+    }
+    Ok(out)
+}
+
+/// The dict `umbra.grad` returns, without `loss` and `render`.
+pub fn gradient_dict(py: Python<'_>, g: umbra::adjoint::Gradient) -> PyResult<Bound<'_, PyDict>> {
     let out = PyDict::new(py);
     let vertices = PyList::empty(py);
     for v in &g.vertices {
@@ -251,11 +263,6 @@ fn grad<'py>(
         }
     }
     out.set_item("vertex_albedo", va)?;
-    out.set_item("loss", value)?;
-    match primal {
-        Some(h) => out.set_item("render", h.data.into_pyarray(py).reshape(h.shape)?)?,
-        None => out.set_item("render", py.None())?,
-    }
     out.set_item("truncated_paths", g.truncated)?;
     out.set_item("boundary_terms", g.boundary)?;
     Ok(out)
@@ -278,6 +285,11 @@ fn _umbra(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render, m)?)?;
     m.add_function(wrap_pyfunction!(grad, m)?)?;
     m.add_function(wrap_pyfunction!(option_names, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::_scene_from_wire, m)?)?;
+    m.add_function(wrap_pyfunction!(shards::render_measurements, m)?)?;
+    m.add_function(wrap_pyfunction!(shards::grad_chunk_layout, m)?)?;
+    m.add_function(wrap_pyfunction!(shards::grad_chunks, m)?)?;
+    m.add_function(wrap_pyfunction!(shards::grad_combine, m)?)?;
     m.add_function(wrap_pyfunction!(fit::fit, m)?)?;
     m.add_function(wrap_pyfunction!(validation::capture, m)?)?;
     m.add_function(wrap_pyfunction!(validation::mc3_samples, m)?)?;

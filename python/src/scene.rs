@@ -239,6 +239,17 @@ impl PyScene {
         }
     }
 
+    /// Pickling (`umbra.distributed` sends a scene to Ray workers this way): the whole
+    /// scene, meshes included, as bytes that read back to the same bits.
+    fn __reduce__<'py>(
+        slf: &Bound<'py, Self>,
+    ) -> PyResult<(Bound<'py, PyAny>, (Bound<'py, pyo3::types::PyBytes>,))> {
+        let py = slf.py();
+        let from = py.import("umbra._umbra")?.getattr("_scene_from_wire")?;
+        let bytes = pyo3::types::PyBytes::new(py, &slf.borrow().inner.to_wire());
+        Ok((from, (bytes,)))
+    }
+
     fn __repr__(&self) -> String {
         let s = &self.inner;
         format!(
@@ -278,4 +289,10 @@ pub fn default_scene() -> PyResult<PyScene> {
     Ok(PyScene::new(
         umbra::scene::default::default_scene().map_err(to_py)?,
     ))
+}
+
+/// A scene from `Scene.__reduce__`'s bytes (pickle's reader), checked like a scene file.
+#[pyfunction]
+pub fn _scene_from_wire(bytes: &[u8]) -> PyResult<PyScene> {
+    Ok(PyScene::new(Scene::from_wire(bytes).map_err(to_py)?))
 }

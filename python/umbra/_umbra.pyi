@@ -56,6 +56,8 @@ class Scene:
         None removes it."""
     def copy(self) -> Scene:
         """A copy of the scene (to perturb without touching the original)."""
+    def __reduce__(self) -> Tuple[Callable[[bytes], Scene], Tuple[bytes]]:
+        """Pickling: the whole scene, meshes included, as bytes (``umbra.distributed``)."""
 
 def load_scene(path: str, defines: Optional[Sequence[Tuple[str, str]]] = None) -> Scene:
     """Loads a scene file: Umbra TOML or Mitsuba XML, with ``defines`` for the XML's
@@ -156,3 +158,16 @@ def mc3_samples(scene: Scene, spp: int, seed: int = 0) -> Dict[str, npt.NDArray[
 def tri3_subtriangles(scene: Scene, subdivision: Optional[float] = None) -> Dict[str, npt.NDArray[Any]]:
     """The sub-triangles ``tri3`` renders with: ``parent`` (S,) and ``corner_bary``
     (S, 3, 2)."""
+
+
+# The pieces of a render and a gradient that umbra.distributed sends to Ray workers.
+def _scene_from_wire(bytes: bytes) -> Scene: ...
+def render_measurements(scene: Scene, start: int, stop: int, **options: Any) -> np.ndarray:
+    """Rows ``start..stop`` of the render (measurements in order), ``(stop - start, T)``."""
+def grad_chunk_layout(scene: Scene) -> List[Tuple[int, int]]:
+    """The gradient's chunks as measurement ranges, in chunk order."""
+def grad_chunks(scene: Scene, adjoint_rows: npt.ArrayLike, start: int, stop: int,
+                **options: Any) -> List[Dict[str, Any]]:
+    """The shares of gradient chunks ``start..stop`` for their adjoint rows."""
+def grad_combine(scene: Scene, parts: Sequence[Dict[str, Any]], **options: Any) -> Dict[str, Any]:
+    """The gradient from every chunk's share, added in chunk order."""

@@ -110,12 +110,25 @@ impl Sink for AdjointSink<'_> {
 
 /// Work is split into this many chunks of measurements at most, whatever the thread
 /// count, and the chunks' sums are added in order: the gradient is bit-identical for any
-/// number of threads.
-const MAX_CHUNKS: usize = 16;
+/// number of threads, and for any split of the chunks between processes
+/// ([`gradient_chunks`], [`combine`]: `umbra.distributed`).
+pub const MAX_CHUNKS: usize = 16;
+
+/// How many chunks a gradient over `measurements` measurements has.
+pub fn chunk_count(measurements: usize) -> usize {
+    MAX_CHUNKS.min(measurements).max(1)
+}
+
+/// The measurements of chunk `c` of a gradient over `measurements` measurements.
+pub fn chunk_measurements(c: usize, measurements: usize) -> std::ops::Range<usize> {
+    let chunks = chunk_count(measurements);
+    (c * measurements / chunks)..((c + 1) * measurements / chunks)
+}
 
 /// `dLoss/dθ` for the adjoint histogram `adjoint` (`dLoss/dH`, the render's shape), on
 /// the render's driver ([`Renderer::prepare`]: the same gate, model, film, measurements
-/// and sample blocks as the forward pass).
+/// and sample blocks as the forward pass): every chunk's share ([`gradient_chunks`]),
+/// added in chunk order ([`combine`]).
 pub fn gradient(
     scene: &Scene,
     geom: &SceneGeometry,
@@ -123,55 +136,99 @@ pub fn gradient(
     adjoint: &[f32],
     progress: Option<&Progress>,
 ) -> Result<Gradient> {
+    let chunks = chunk_count(scene.num_measurements());
+    let parts = gradient_chunks(scene, geom, opts, adjoint, 0..chunks, progress)?;
+    combine(scene, geom, opts, parts)
+}
+
+/// One chunk's share of the gradient ([`chunk_measurements`]): per-triangle local
+/// gradients (corners, corner albedos; flat triangle order) and, with boundary terms,
+/// per-vertex gradients. A chunk's share depends on the scene, the options, the chunk's
+/// index and its adjoint rows only, not on the process or thread that computed it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ChunkGrad {
+    pub index: usize,
+    pub tri_grad: Vec<[f64; TRI_PARAMS]>,
+    /// Boundary terms, per object vertex (`None` when they are off).
+    pub vertex_grad: Option<boundary::VertexGrad>,
+    pub emitted: u64,
+    pub truncated: u64,
+    pub boundary_nodes: u64,
+}
+
+/// The shares of chunks `chunks` ([`chunk_measurements`]); `adjoint` holds the adjoint
+/// rows of exactly their measurements (`bins` values each, in order), not the whole
+/// render's.
+pub fn gradient_chunks(
+    scene: &Scene,
+    geom: &SceneGeometry,
+    opts: &RenderOptions,
+    adjoint: &[f32],
+    chunks: std::ops::Range<usize>,
+    progress: Option<&Progress>,
+) -> Result<Vec<ChunkGrad>> {
     let driver = Renderer::prepare(scene, geom, opts, Pass::Gradient)?;
     let film = &driver.film;
     let (measurements, bins) = (scene.num_measurements(), film.bins);
-    if adjoint.len() != measurements * bins {
+    let total = chunk_count(measurements);
+    if chunks.start >= chunks.end || chunks.end > total {
         return Err(Error::Invalid(format!(
-            "adjoint has {} values, the render {} ({measurements} measurements x {bins} bins)",
+            "gradient chunks {}..{}: the scene's gradient has chunks 0..{total}",
+            chunks.start, chunks.end
+        )));
+    }
+    let first = chunk_measurements(chunks.start, measurements).start;
+    let last = chunk_measurements(chunks.end - 1, measurements).end;
+    if adjoint.len() != (last - first) * bins {
+        return Err(Error::Invalid(format!(
+            "adjoint has {} values, the render {} ({} measurements x {bins} bins)",
             adjoint.len(),
-            measurements * bins
+            (last - first) * bins,
+            last - first
         )));
     }
     if let Some(i) = adjoint.iter().position(|v| !v.is_finite()) {
         return Err(Error::Invalid(format!(
-            "adjoint has a non-finite value at flat index {i}"
+            "adjoint has a non-finite value at flat index {}",
+            first * bins + i
         )));
     }
     let tris = geom.hidden.len();
-    let chunks = MAX_CHUNKS.min(measurements).max(1);
     let spp = opts.spp.max(1);
     let boundary = boundary_terms_apply(scene, opts);
     let edges = (boundary && Boundary::occlusion_possible(scene, geom))
         .then(|| Boundary::new(scene, film, opts));
-    // tri3's interior pass runs blocks outer over every measurement: the contexts are
-    // built once, for it and the boundary terms.
+    // tri3's interior pass runs blocks outer over a chunk's measurements: the contexts
+    // are built once, for it and the boundary terms.
     let tri3_ctxs: Option<Vec<MeasurementCtx>> = driver.tri3.as_ref().map(|_| {
-        (0..measurements)
+        (first..last)
             .into_par_iter()
             .map(|m| driver.measurement(m))
             .collect()
     });
-    let partial: Vec<ChunkGrad> = (0..chunks)
+    let rows =
+        |r: &std::ops::Range<usize>| &adjoint[(r.start - first) * bins..(r.end - first) * bins];
+    let mut parts: Vec<ChunkGrad> = chunks
+        .clone()
         .into_par_iter()
         .map(|c| {
             let mut tri_grad = vec![[0.0; TRI_PARAMS]; tris];
             let mut vertex_grad = edges.as_ref().map(|_| zero_vertex_grad(scene));
             let mut views = edge_nodes::ViewCache::default();
             let mut scratch = PathScratch::default();
-            for m in (c * measurements / chunks)..((c + 1) * measurements / chunks) {
+            for m in chunk_measurements(c, measurements) {
                 if Renderer::cancelled(progress) {
                     break;
                 }
                 let built;
                 let ctx = match &tri3_ctxs {
-                    Some(ctxs) => &ctxs[m],
+                    Some(ctxs) => &ctxs[m - first],
                     None => {
                         built = driver.measurement(m);
                         &built
                     }
                 };
-                let adj = &adjoint[m * bins..(m + 1) * bins];
+                let adj = &adjoint[(m - first) * bins..(m - first + 1) * bins];
                 if let (Some(b), Some(g), true) = (&edges, &mut vertex_grad, ctx.legs_visible) {
                     b.measurement(scene, ctx, m, film, adj, &mut views, g);
                 }
@@ -194,6 +251,7 @@ pub fn gradient(
                 Renderer::count(progress, spp as u64);
             }
             ChunkGrad {
+                index: c,
                 tri_grad,
                 vertex_grad,
                 emitted: scratch.emitted,
@@ -205,16 +263,54 @@ pub fn gradient(
     if Renderer::cancelled(progress) {
         return Err(Error::Cancelled);
     }
-    let mut tri_grad = match (&driver.tri3, &tri3_ctxs) {
-        (Some(mesh), Some(ctxs)) => {
-            tri3_adjoint::gradient(mesh, tris, ctxs, film, opts.visibility, adjoint, progress)
-                .ok_or(Error::Cancelled)?
+    if let (Some(mesh), Some(ctxs)) = (&driver.tri3, &tri3_ctxs) {
+        // One chunk at a time (each pass is parallel over the mesh's blocks), so each
+        // chunk's interior share is its own, as for the Monte Carlo models.
+        for part in &mut parts {
+            let r = chunk_measurements(part.index, measurements);
+            let ctx = &ctxs[r.start - first..r.end - first];
+            part.tri_grad =
+                tri3_adjoint::gradient(mesh, tris, ctx, film, opts.visibility, rows(&r), progress)
+                    .ok_or(Error::Cancelled)?;
         }
-        _ => vec![[0.0f64; TRI_PARAMS]; tris],
-    };
-    let mut vertex_grad = zero_vertex_grad(scene);
+    }
+    Ok(parts)
+}
+
+/// The gradient from every chunk's share ([`gradient_chunks`], from one process or many),
+/// added in chunk order: the same bits as [`gradient`].
+pub fn combine(
+    scene: &Scene,
+    geom: &SceneGeometry,
+    opts: &RenderOptions,
+    mut parts: Vec<ChunkGrad>,
+) -> Result<Gradient> {
+    let total = chunk_count(scene.num_measurements());
+    parts.sort_by_key(|p| p.index);
+    let tris = geom.hidden.len();
+    let vertices = zero_vertex_grad(scene);
+    if parts.len() != total || parts.iter().enumerate().any(|(i, p)| p.index != i) {
+        return Err(Error::Invalid(format!(
+            "gradient chunks: got {:?}, the scene's gradient has chunks 0..{total}, each once",
+            parts.iter().map(|p| p.index).collect::<Vec<_>>()
+        )));
+    }
+    if let Some(p) = parts.iter().find(|p| {
+        p.tri_grad.len() != tris
+            || p.vertex_grad.as_ref().is_some_and(|v| {
+                v.len() != vertices.len()
+                    || v.iter().zip(&vertices).any(|(a, b)| a.len() != b.len())
+            })
+    }) {
+        return Err(Error::Invalid(format!(
+            "gradient chunk {}: its sizes are not this scene's ({} triangles)",
+            p.index, tris
+        )));
+    }
+    let mut tri_grad = vec![[0.0f64; TRI_PARAMS]; tris];
+    let mut vertex_grad = vertices;
     let (mut contributions, mut truncated, mut nodes) = (0, 0, 0);
-    for part in partial {
+    for part in parts {
         for (acc, g) in tri_grad.iter_mut().zip(part.tri_grad) {
             acc.iter_mut().zip(g).for_each(|(a, g)| *a += g);
         }
@@ -232,19 +328,9 @@ pub fn gradient(
     }
     let mut g = scatter(scene, geom, &tri_grad, vertex_grad);
     (g.contributions, g.truncated) = (contributions, truncated);
-    g.boundary = boundary;
+    g.boundary = boundary_terms_apply(scene, opts);
     g.boundary_nodes = nodes;
     Ok(g)
-}
-
-/// One work chunk's share of the gradient.
-struct ChunkGrad {
-    tri_grad: Vec<[f64; TRI_PARAMS]>,
-    /// Boundary terms, per object vertex (`None` when they are off).
-    vertex_grad: Option<boundary::VertexGrad>,
-    emitted: u64,
-    truncated: u64,
-    boundary_nodes: u64,
 }
 
 fn zero_vertex_grad(scene: &Scene) -> boundary::VertexGrad {

@@ -7,7 +7,7 @@ use crate::error::{Error, Result};
 use glam::{Affine3A, Vec3};
 use std::path::Path;
 
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug, Default, PartialEq)]
 pub struct TriMesh {
     pub positions: Vec<Vec3>,
     pub triangles: Vec<[u32; 3]>,

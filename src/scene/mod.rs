@@ -11,6 +11,7 @@ pub mod checks;
 pub mod default;
 pub mod mitsuba_xml;
 pub mod toml_format;
+pub mod wire;
 
 use crate::error::{Error, Result};
 use crate::geometry::mesh::TriMesh;
@@ -18,7 +19,7 @@ use glam::Vec3;
 use std::path::Path;
 
 /// Which wall points the laser and the detector look at (mitransient's `capture_type`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum CaptureType {
     /// One laser point (`Laser::target`), a grid of sensor points.
     Single,
@@ -47,7 +48,7 @@ impl CaptureType {
 }
 
 /// Light-transport model (DESIGN §3); the same names in the CLI, scene files and Python.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Model {
     /// Deterministic per-triangle three-bounce model (rung 1).
     Tri3,
@@ -80,7 +81,7 @@ impl Model {
 }
 
 /// Which shadow rays the deterministic `tri3` model casts.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Visibility {
     /// None: every triangle sees both wall points (fastest; exact for convex objects
     /// facing the wall).
@@ -112,7 +113,7 @@ impl Visibility {
 /// The visible diffuse relay wall: a rectangle `center + s * axis_u + t * axis_v`,
 /// `s, t ∈ [-1/2, 1/2]`. Its front (the side the hidden scene is on) is
 /// `axis_u × axis_v`. y-tal's convention puts it at `z = 0` with normal `+z`.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug, PartialEq)]
 pub struct RelayWall {
     pub center: Vec3,
     /// Full edge vector along the scan's x direction (m).
@@ -134,7 +135,7 @@ impl RelayWall {
 }
 
 /// How much light the laser delivers to its wall spot.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Copy, Debug, PartialEq)]
 pub enum LaserEmission {
     /// Power delivered to the spot, whatever the spot's position (W).
     Power(f32),
@@ -144,7 +145,7 @@ pub enum LaserEmission {
 }
 
 /// The laser: where it stands, the wall point it aims at (single capture), its emission.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug, PartialEq)]
 pub struct Laser {
     pub origin: Vec3,
     /// Wall point hit in single capture (m).
@@ -172,7 +173,7 @@ impl Laser {
 }
 
 /// The time-resolved detector (SPAD); it records radiance leaving the wall toward it.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug, PartialEq)]
 pub struct Detector {
     pub origin: Vec3,
 }
@@ -180,7 +181,7 @@ pub struct Detector {
 /// Scan points at the pixel centres of a rectangle on the wall (mitransient's
 /// `nlos_capture_meter`): point `(ix, iy)` is
 /// `center + ((ix + ½)/nx - ½) axis_u + ((iy + ½)/ny - ½) axis_v`.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug, PartialEq)]
 pub struct ScanGrid {
     pub nx: u32,
     pub ny: u32,
@@ -207,7 +208,7 @@ impl ScanGrid {
 }
 
 /// Temporal response `k(τ)` of the detector (DESIGN §4).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Copy, Debug, PartialEq)]
 pub enum KernelSpec {
     /// A histogram: a path lands in the bin that holds its OPL (mitransient's default).
     Box,
@@ -218,7 +219,7 @@ pub enum KernelSpec {
 
 /// The transient film (mitransient's `transient_hdr_film`): bin `b` holds OPL in
 /// `[start_opl + b * bin_width_opl, start_opl + (b + 1) * bin_width_opl)`.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug, PartialEq)]
 pub struct FilmSpec {
     pub temporal_bins: u32,
     pub bin_width_opl: f32,
@@ -227,7 +228,7 @@ pub struct FilmSpec {
 }
 
 /// A hidden Lambertian object: a world-space triangle mesh and its albedo.
-#[derive(Clone, Debug)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
 pub struct HiddenObject {
     /// Name used in messages and outputs (the file stem or the scene's `name`).
     pub name: String,
@@ -241,7 +242,7 @@ pub struct HiddenObject {
 }
 
 /// How a hidden surface reflects.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Copy, Debug, Default, PartialEq)]
 pub enum Reflectance {
     /// Lambertian, `f = ρ/π`.
     #[default]
@@ -306,7 +307,7 @@ impl Reflectance {
 }
 
 /// Which sampling techniques the Monte Carlo estimators use (the seed paper's ablation).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug, PartialEq)]
 pub struct Techniques {
     /// Next-event estimation to the laser spot (mitransient `nlos_laser_sampling`).
     pub laser_sampling: bool,
@@ -321,7 +322,7 @@ pub struct Techniques {
 }
 
 /// Render settings: sample count, depth, seed, model, techniques, bounce filter.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug, PartialEq)]
 pub struct RenderSettings {
     pub spp: u32,
     /// Longest path, counted in bounces: 3 = laser spot, one hidden point, sensor point.
@@ -374,7 +375,7 @@ pub const DEFAULT_SUBDIVISION: f32 = 0.15;
 pub const DEFAULT_MAX_ERROR: f32 = 0.01;
 
 /// A complete NLOS scene, validated.
-#[derive(Clone, Debug)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
 pub struct Scene {
     pub wall: RelayWall,
     pub laser: Laser,

@@ -211,10 +211,35 @@ impl<'a> Renderer<'a> {
 
     /// Renders every measurement.
     pub fn render(&self, progress: Option<&Progress>) -> Result<Transient> {
+        let data = self.render_measurements(0..self.scene.num_measurements(), progress)?;
+        Ok(Transient {
+            data,
+            shape: self.scene.output_shape(),
+        })
+    }
+
+    /// Renders measurements `range` (in the render's order: scan points, laser points
+    /// for exhaustive captures, row-major), `range.len()` rows of `bins` values: exactly
+    /// those rows of [`Renderer::render`]'s output, whatever process runs them (each
+    /// measurement's samples depend on the seed and its index alone). `umbra.distributed`
+    /// splits a render this way.
+    pub fn render_measurements(
+        &self,
+        range: std::ops::Range<usize>,
+        progress: Option<&Progress>,
+    ) -> Result<Vec<f32>> {
+        let n = self.scene.num_measurements();
+        if range.start > range.end || range.end > n {
+            return Err(Error::Invalid(format!(
+                "measurements {}..{} are not within the scene's 0..{n}",
+                range.start, range.end
+            )));
+        }
         let bins = self.film.bins;
-        let mut data = vec![0.0f32; self.scene.num_measurements() * bins];
+        let first = range.start;
+        let mut data = vec![0.0f32; range.len() * bins];
         let cancelled = AtomicBool::new(false);
-        let nested = self.scene.num_measurements() < rayon::current_num_threads();
+        let nested = range.len() < rayon::current_num_threads();
         let stop = || {
             let c = cancelled.load(Ordering::Relaxed) || Self::cancelled(progress);
             if c {
@@ -225,10 +250,11 @@ impl<'a> Renderer<'a> {
         if !self.geom.hidden.is_empty() {
             data.par_chunks_mut(bins).enumerate().for_each_init(
                 Tri3Scratch::default,
-                |scratch, (m, out)| {
+                |scratch, (i, out)| {
                     if stop() {
                         return;
                     }
+                    let m = first + i;
                     let ctx = self.measurement(m);
                     if !ctx.legs_visible {
                         Self::count(progress, self.work_per_measurement());
@@ -254,13 +280,11 @@ impl<'a> Renderer<'a> {
         }
         if let Some(i) = data.iter().position(|v| !v.is_finite()) {
             return Err(Error::Invalid(format!(
-                "render produced a non-finite value at flat index {i}: refusing to write it (please report this scene)"
+                "render produced a non-finite value at flat index {}: refusing to write it (please report this scene)",
+                first * bins + i
             )));
         }
-        Ok(Transient {
-            data,
-            shape: self.scene.output_shape(),
-        })
+        Ok(data)
     }
 
     /// The Monte Carlo estimate of one measurement (mean over spp), or `None` if

@@ -1,0 +1,360 @@
+"""Umbra on a Ray cluster: one render or gradient split over many processes and machines,
+data sets of many scenes, many fits at once (issue 21). Ray schedules, moves data and
+retries; nothing here is a scheduler of its own.
+
+- :func:`render` splits one render's measurements (scan points; laser points too for
+  exhaustive captures) into shards and returns exactly ``umbra.render``'s array, bit for
+  bit: each measurement's samples depend on the seed and its index alone, not on where
+  it runs. ``out="x.npy"`` streams the shards into a memory-mapped file instead of one
+  process's memory.
+- :func:`grad` splits a gradient into the renderer's fixed chunks of measurements
+  (``umbra::adjoint::gradient_chunks``); the chunks' shares are added in chunk order, so
+  the result is ``umbra.grad``'s, bit for bit, for any number of workers.
+- :func:`render_many` renders a data set, one ``.npy`` per scene and a
+  ``manifest.json``; a rerun skips what is complete, a failed scene is reported, not fatal.
+- :func:`fit_many` runs several ``umbra.fit`` at once, each in its own output folder with
+  its own checkpoint (a rerun resumes them).
+
+What moves over the network: each scene once per machine (``ray.put``: Ray's object
+store; each shard unpickles it), each shard's adjoint rows (gradients), and each shard's
+result rows or chunk shares back. A worker killed mid-shard is retried by Ray
+(``max_retries``); its result is the same bits.
+
+Needs Ray (``pip install './python[ray]'``). Without a running ``ray.init``, the first
+call starts a local one (``RAY_ADDRESS`` or ``ray start --head`` to join a cluster).
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from typing import Any, Callable, Dict, Iterable, List, Mapping, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from . import _umbra
+
+# Ray's retries of a shard whose worker died (a killed process, a lost node).
+MAX_RETRIES = 3
+
+
+def _ray():
+    try:
+        import ray
+    except ImportError as e:  # pragma: no cover - the message is the point
+        raise ImportError("umbra.distributed needs Ray: pip install './python[ray]' "
+                          "(or pip install ray)") from e
+    if not ray.is_initialized():
+        ray.init(address=os.environ.get("RAY_ADDRESS"), log_to_driver=False)
+    return ray
+
+
+def _workers(ray) -> int:
+    return max(1, int(ray.cluster_resources().get("CPU", 1)))
+
+
+def _even(n: int, parts: int) -> List[Tuple[int, int]]:
+    parts = max(1, min(parts, n))
+    return [(i * n // parts, (i + 1) * n // parts) for i in range(parts)]
+
+
+def _bar(total: int, desc: str, progress: Union[bool, Callable[[int, int], Any]]):
+    """A tqdm bar when tqdm is there and progress is True; a callback's adapter; or None."""
+    if callable(progress):
+        class _Call:
+            def __init__(self):
+                self.n = 0
+
+            def update(self, k):
+                self.n += k
+                progress(self.n, total)
+
+            def close(self):
+                pass
+        return _Call()
+    if not progress:
+        return None
+    try:
+        from tqdm.auto import tqdm
+    except ImportError:
+        return None
+    return tqdm(total=total, desc=desc, unit="shard")
+
+
+def _shard_error(what: str, shard: int, rows: Tuple[int, int], e: BaseException) -> _umbra.UmbraError:
+    cause = getattr(e, "cause", None) or e
+    return _umbra.UmbraError(f"{what}: shard {shard} (measurements {rows[0]}..{rows[1]}) failed: "
+                             f"{type(cause).__name__}: {cause}")
+
+
+def _gather(ray, refs: Sequence[Any], what: str, rows: Sequence[Tuple[int, int]],
+            take: Callable[[int, Any], None], bar) -> None:
+    """Waits for every shard, handing each result to ``take(i, result)`` as it arrives
+    (so big results are written and dropped one at a time); the first failure is raised,
+    naming ``what`` and the shard, after cancelling the rest."""
+    index = {r: i for i, r in enumerate(refs)}
+    pending = list(refs)
+    try:
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            i = index[done[0]]
+            try:
+                result = ray.get(done[0])
+            except Exception as e:  # Ray wraps the worker's error
+                raise _shard_error(what, i, rows[i], e) from e
+            take(i, result)
+            if bar is not None:
+                bar.update(1)
+    finally:
+        for r in pending:
+            ray.cancel(r, force=True)
+        if bar is not None:
+            bar.close()
+
+
+def _remote(ray, fn, cpus: int):
+    return ray.remote(num_cpus=cpus, max_retries=MAX_RETRIES, retry_exceptions=False)(fn)
+
+
+def _render_rows(scene, start, stop, options, hook):
+    if hook is not None:
+        hook(start, stop)
+    return _umbra.render_measurements(scene, start, stop, **options)
+
+
+def _grad_rows(scene, adjoint_rows, chunks, options, hook):
+    if hook is not None:
+        hook(*chunks)
+    return _umbra.grad_chunks(scene, adjoint_rows, chunks[0], chunks[1], **options)
+
+
+def _options(spp, model, seed, cpus, extra) -> Dict[str, Any]:
+    o = {k: v for k, v in dict(spp=spp, model=model, seed=seed).items() if v is not None}
+    o.update({k: v for k, v in extra.items() if v is not None})
+    o.setdefault("threads", cpus)
+    return o
+
+
+def _atomic_npy(path: str, shape: Sequence[int]):
+    """A float32 ``.npy`` memory map at a temporary name beside ``path``, and the call
+    that flushes it and moves it into place."""
+    d = os.path.dirname(os.path.abspath(path)) or "."
+    fd, tmp = tempfile.mkstemp(prefix=".umbra-", suffix=".npy", dir=d)
+    os.close(fd)
+    mm = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=tuple(shape))
+
+    def finish():
+        mm.flush()
+        os.replace(tmp, path)
+    return mm, finish, tmp
+
+
+def render(scene: "_umbra.Scene", *, spp: Optional[int] = None, model: Optional[str] = None,
+           seed: Optional[int] = None, shards: Optional[int] = None, out: Optional[str] = None,
+           cpus_per_shard: int = 1, progress: Union[bool, Callable[[int, int], Any]] = True,
+           _on_shard: Optional[Callable[[int, int], Any]] = None, **options: Any):
+    """``umbra.render(scene, spp=..., model=..., seed=..., **options)`` on the Ray cluster,
+    the same array bit for bit. ``shards``: how many pieces (default four per CPU of the
+    cluster, at most one per measurement); each runs on ``cpus_per_shard`` cores (its
+    render threads). ``out``: a ``.npy`` path to stream the result into (written at a
+    temporary name and moved into place when complete; returns the memory map opened
+    read-only) instead of returning an in-memory array. ``progress``: a tqdm bar (True,
+    when tqdm is installed), a callback ``progress(done, total)`` or False."""
+    ray = _ray()
+    shape = tuple(scene.shape)
+    n, bins = int(np.prod(shape[:-1])), shape[-1]
+    opts = _options(spp, model, seed, cpus_per_shard, options)
+    rows = _even(n, shards or 4 * _workers(ray))
+    task = _remote(ray, _render_rows, cpus_per_shard)
+    scene_ref = ray.put(scene)
+    refs = [task.remote(scene_ref, a, b, opts, _on_shard) for a, b in rows]
+    if out is not None:
+        if not str(out).endswith(".npy"):
+            raise ValueError(f"out={out!r}: a .npy path (the render streams into a memory map)")
+        mm, finish, tmp = _atomic_npy(out, shape)
+        flat = mm.reshape(n, bins)
+    else:
+        result = np.empty(shape, np.float32)
+        flat = result.reshape(n, bins)
+
+    def take(i, block):
+        a, b = rows[i]
+        flat[a:b] = block
+    try:
+        _gather(ray, refs, "render", rows, take, _bar(len(rows), "umbra render", progress))
+    except BaseException:
+        if out is not None:
+            del mm, flat
+            os.unlink(tmp)
+        raise
+    if out is None:
+        return result
+    del flat
+    finish()
+    return np.load(out, mmap_mode="r")
+
+
+def grad(scene: "_umbra.Scene", adjoint: Any, *, spp: Optional[int] = None,
+         model: Optional[str] = None, seed: Optional[int] = None, shards: Optional[int] = None,
+         cpus_per_shard: int = 1, progress: Union[bool, Callable[[int, int], Any]] = True,
+         _on_shard: Optional[Callable[[int, int], Any]] = None, **options: Any) -> Dict[str, Any]:
+    """``umbra.grad(scene, adjoint, ...)`` on the Ray cluster: the same dict (``loss`` and
+    ``render`` None), bit for bit. The gradient's measurements are cut into the
+    renderer's fixed chunks (at most 16); ``shards`` (default: one per CPU of the cluster,
+    at most one per chunk) get consecutive chunks and only their adjoint rows."""
+    ray = _ray()
+    shape = tuple(scene.shape)
+    adjoint = np.ascontiguousarray(adjoint, dtype=np.float32)
+    if adjoint.shape != shape:
+        raise ValueError(f"adjoint has shape {adjoint.shape}, the render {shape}")
+    n, bins = int(np.prod(shape[:-1])), shape[-1]
+    flat = adjoint.reshape(n, bins)
+    layout = _umbra.grad_chunk_layout(scene)
+    groups = _even(len(layout), shards or _workers(ray))
+    rows = [(layout[a][0], layout[b - 1][1]) for a, b in groups]
+    opts = _options(spp, model, seed, cpus_per_shard, options)
+    task = _remote(ray, _grad_rows, cpus_per_shard)
+    scene_ref = ray.put(scene)
+    refs = [task.remote(scene_ref, flat[r[0]:r[1]], g, opts, _on_shard)
+            for g, r in zip(groups, rows)]
+    parts: List[Any] = []
+    _gather(ray, refs, "grad", rows, lambda i, p: parts.extend(p),
+            _bar(len(refs), "umbra grad", progress))
+    out = _umbra.grad_combine(scene, parts, **opts)
+    out["loss"], out["render"] = None, None
+    return out
+
+
+def _write_json(path: str, value: Any) -> None:
+    tmp = f"{path}.tmp"
+    with open(tmp, "w", encoding="utf-8") as f:
+        json.dump(value, f, indent=1, sort_keys=True)
+    os.replace(tmp, path)
+
+
+def _render_scene(scene, opts):
+    t0 = time.perf_counter()
+    h = _umbra.render(scene, **opts)
+    return h, time.perf_counter() - t0
+
+
+def render_many(scenes: Union[Mapping[str, Any], Iterable[Tuple[str, Any]]], out_dir: str, *,
+                spp: Optional[int] = None, model: Optional[str] = None, seed: Optional[int] = None,
+                cpus_per_scene: int = 1, progress: Union[bool, Callable[[int, int], Any]] = True,
+                **options: Any) -> Dict[str, Any]:
+    """A data set: each ``(name, scene)`` (a ``umbra.Scene`` or a scene file's path)
+    rendered with the same settings into ``out_dir/NAME.npy``, and ``out_dir/manifest.json``
+    (per name: file, shape, settings, seconds, or the error), rewritten after every
+    scene. A rerun with the same settings skips the scenes already done; a scene that fails
+    (a bad file, a render error) is recorded and reported, and the rest go on. Returns the
+    manifest."""
+    ray = _ray()
+    items = list(scenes.items() if isinstance(scenes, Mapping) else scenes)
+    names = [n for n, _ in items]
+    if len(set(names)) != len(names):
+        raise ValueError("render_many: scene names must be unique")
+    for n in names:
+        if not n or os.sep in n or n.startswith("."):
+            raise ValueError(f"render_many: scene name {n!r} is not a plain file name")
+    os.makedirs(out_dir, exist_ok=True)
+    mpath = os.path.join(out_dir, "manifest.json")
+    manifest: Dict[str, Any] = {}
+    if os.path.exists(mpath):
+        with open(mpath, encoding="utf-8") as f:
+            manifest = json.load(f)
+    opts = _options(spp, model, seed, cpus_per_scene, options)
+    settings = {k: v for k, v in opts.items() if k != "threads"}
+
+    def done(name):
+        e = manifest.get(name, {})
+        return (e.get("status") == "done" and e.get("settings") == settings
+                and os.path.exists(os.path.join(out_dir, e.get("file", ""))))
+    todo = [(n, s) for n, s in items if not done(n)]
+    task = _remote(ray, _render_scene, cpus_per_scene)
+    refs, which = [], []
+    for name, s in todo:
+        try:
+            sc = s if isinstance(s, _umbra.Scene) else _umbra.load_scene(os.fspath(s))
+        except Exception as e:
+            manifest[name] = dict(status="failed", error=f"{type(e).__name__}: {e}", settings=settings)
+            continue
+        refs.append(task.remote(sc, opts))
+        which.append(name)
+    _write_json(mpath, manifest)
+    bar = _bar(len(refs), "umbra render_many", progress)
+    index = {r: i for i, r in enumerate(refs)}
+    pending = list(refs)
+    while pending:
+        ready, pending = ray.wait(pending, num_returns=1)
+        name = which[index[ready[0]]]
+        try:
+            h, seconds = ray.get(ready[0])
+            path = os.path.join(out_dir, f"{name}.npy")
+            tmp = os.path.join(out_dir, f".{name}.npy.tmp")
+            with open(tmp, "wb") as f:
+                np.save(f, h)
+            os.replace(tmp, path)
+            manifest[name] = dict(status="done", file=f"{name}.npy", shape=list(h.shape),
+                                  settings=settings, seconds=seconds)
+        except Exception as e:
+            cause = getattr(e, "cause", None) or e
+            manifest[name] = dict(status="failed", error=f"{type(cause).__name__}: {cause}",
+                                  settings=settings)
+        _write_json(mpath, manifest)
+        if bar is not None:
+            bar.update(1)
+    if bar is not None:
+        bar.close()
+    return manifest
+
+
+def _fit_one(job, output):
+    from . import fit
+    job = dict(job)
+    scene = job.pop("scene")
+    if not isinstance(scene, _umbra.Scene):
+        scene = _umbra.load_scene(os.fspath(scene))
+    measured = job.pop("measured", None)
+    resume = os.path.exists(os.path.join(output, "checkpoint"))
+    out = fit(scene, measured, output=output, resume=resume, **job)
+    keep = ("final_loss", "relative_l2", "scale", "background", "seconds", "init",
+            "photon_noise_floor", "chamfer", "undetermined_faces", "unsupported_faces")
+    return {k: out.get(k) for k in keep}
+
+
+def fit_many(jobs: Union[Mapping[str, Mapping[str, Any]], Iterable[Tuple[str, Mapping[str, Any]]]],
+             out_root: str, *, cpus_per_fit: int = 1,
+             progress: Union[bool, Callable[[int, int], Any]] = True) -> Dict[str, Any]:
+    """Several ``umbra.fit`` runs at once: each ``(name, job)`` (``job``: ``scene`` (a
+    ``umbra.Scene`` or a path), ``measured`` and any ``umbra.fit`` keyword) fitted into
+    ``out_root/NAME`` with its own checkpoint; a rerun resumes each from its checkpoint
+    (a finished fit's checkpoint returns it at once). ``out_root`` must be reachable by
+    every worker (one machine, or a shared file system). Returns, per name, the fit's
+    figures (``final_loss``, ``relative_l2``, ``seconds``, ...) or ``{"error": ...}``;
+    a failed fit does not stop the others."""
+    ray = _ray()
+    items = list(jobs.items() if isinstance(jobs, Mapping) else jobs)
+    task = _remote(ray, _fit_one, cpus_per_fit)
+    refs = []
+    for name, job in items:
+        job = dict(job)
+        job.setdefault("threads", cpus_per_fit)
+        refs.append(task.remote(job, os.path.join(out_root, name)))
+    results: Dict[str, Any] = {}
+    bar = _bar(len(refs), "umbra fit_many", progress)
+    index = {r: i for i, r in enumerate(refs)}
+    pending = list(refs)
+    while pending:
+        ready, pending = ray.wait(pending, num_returns=1)
+        name = items[index[ready[0]]][0]
+        try:
+            results[name] = ray.get(ready[0])
+        except Exception as e:
+            cause = getattr(e, "cause", None) or e
+            results[name] = {"error": f"{type(cause).__name__}: {cause}"}
+        if bar is not None:
+            bar.update(1)
+    if bar is not None:
+        bar.close()
+    return results

@@ -5,7 +5,8 @@
 #   2. a Python venv in .venv with the peers (python/requirements-test.txt);
 #   3. cargo test --release (Rust unit, integration and fuzz tests);
 #   4. the `umbra` Python package (python/, maturin) into .venv, and PyTorch unless
-#      UMBRA_SKIP_TORCH=1 (the torch tests are then skipped, with that reason);
+#      UMBRA_SKIP_TORCH=1 (the torch tests are then skipped, with that reason), and Ray
+#      (umbra.distributed) unless UMBRA_SKIP_RAY=1 (likewise);
 #   5. the Python suite (python/tests): the package, umbra.torch, Umbra against mitransient.
 # Each install step runs only when its check fails, so reruns are fast.
 set -euo pipefail
@@ -37,6 +38,10 @@ echo "== the umbra Python package"
 if [ "${UMBRA_SKIP_TORCH:-0}" != "1" ] && ! .venv/bin/python -c "import importlib.util as u, sys; sys.exit(u.find_spec('torch') is None)"; then
     echo "== installing torch (CPU use; UMBRA_SKIP_TORCH=1 skips it and its tests)"
     .venv/bin/pip install -q torch
+fi
+if [ "${UMBRA_SKIP_RAY:-0}" != "1" ] && ! .venv/bin/python -c "import importlib.util as u, sys; sys.exit(u.find_spec('ray') is None)"; then
+    echo "== installing ray (umbra.distributed; UMBRA_SKIP_RAY=1 skips it and its tests)"
+    .venv/bin/pip install -q "ray>=2.9"
 fi
 
 # y-tal (pins numpy < 2) gets its own venv: python/tests/test_ytal.py reads Umbra's .hdf5

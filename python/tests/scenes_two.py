@@ -24,11 +24,12 @@ def _quad_obj(path: Path, cx: float, cy: float, z: float, half: float, tilt: flo
     path.write_text("\n".join(lines) + "\n")
 
 
-def two_object_scene(tmp: Path) -> umbra.Scene:
+def two_object_scene(tmp: Path, capture: str = "confocal", scan: int = 6) -> umbra.Scene:
+    """The two quads; ``capture`` confocal, single or exhaustive on a ``scan x scan`` grid."""
     _quad_obj(tmp / "a.obj", -0.15, 0.05, 0.7, 0.08, 0.03)
     _quad_obj(tmp / "b.obj", 0.18, -0.1, 0.9, 0.1, -0.04)
     (tmp / "two.toml").write_text("""
-capture_type = "confocal"
+capture_type = "CAPTURE"
 [wall]
 center = [0.0, 0.0, 0.0]
 size = [1.2, 1.2]
@@ -39,7 +40,7 @@ irradiance = 1.0
 [detector]
 origin = [0.0, -0.4, 1.2]
 [scan]
-resolution = [6, 6]
+resolution = [SCAN, SCAN]
 size = [0.8, 0.8]
 [film]
 temporal_bins = 160
@@ -59,5 +60,5 @@ two_sided = true
 model = "tri3"
 spp = 16
 seed = 0
-""")
+""".replace("CAPTURE", capture).replace("SCAN", str(scan)))
     return umbra.load_scene(str(tmp / "two.toml"))

@@ -161,7 +161,8 @@ def tri3_subtriangles(scene: Scene, subdivision: Optional[float] = None) -> Dict
 
 
 # The pieces of a render and a gradient that umbra.distributed sends to Ray workers.
-def _scene_from_wire(bytes: bytes) -> Scene: ...
+def _scene_from_wire(bytes: bytes) -> Scene:
+    """A scene from ``Scene.__reduce__``'s bytes (pickle's reader), checked like a scene file."""
 def render_measurements(scene: Scene, start: int, stop: int, **options: Any) -> np.ndarray:
     """Rows ``start..stop`` of the render (measurements in order), ``(stop - start, T)``."""
 def grad_chunk_layout(scene: Scene) -> List[Tuple[int, int]]:

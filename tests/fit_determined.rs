@@ -3,9 +3,9 @@
 //! photon count (it is not a brightness threshold); a fit to data that are not counts
 //! leaves nothing out.
 
+mod common;
+
 use umbra::fit::determined::face_determination;
-use umbra::fit::objective::UmbraObjective;
-use umbra::fit::{Background, IntensityModel};
 use umbra::scene::default::default_scene;
 use umbra::scene::{KernelSpec, Model};
 use umbra::transport::RenderOptions;
@@ -48,25 +48,11 @@ fn determination(peak: f32) -> (Vec<f64>, usize) {
     }
     mesh.faces.push([base, base + 1, base + 2]);
     mesh.faces.push([base, base + 2, base + 3]);
-    let mut objective = UmbraObjective {
-        options: RenderOptions {
-            model: Model::Tri3,
-            ..RenderOptions::from_scene(&scene)
-        },
-        scene,
-        measured: Vec::new(),
-        intensity: IntensityModel {
-            scale: true,
-            background: Background::Constant,
-        },
-        albedo: 0.8,
-        two_sided: true,
-        reflectance: Default::default(),
-        first_bin: 0,
-        jitter_opl: 0.0,
-        time_offset_max_opl: 0.0,
-        irf: None,
+    let opts = RenderOptions {
+        model: Model::Tri3,
+        ..RenderOptions::from_scene(&scene)
     };
+    let mut objective = common::objective(&scene, opts, Vec::new());
     let (clean, ..) = objective.render(&letter).unwrap();
     let max = clean.iter().cloned().fold(0.0f32, f32::max);
     objective.measured = clean

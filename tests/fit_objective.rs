@@ -4,6 +4,8 @@
 //! per-bin background and a timing-jitter blur of two bins, on vertex positions and
 //! per-vertex albedo.
 
+mod common;
+
 use optim::MeshObjective;
 use umbra::fit::objective::UmbraObjective;
 use umbra::fit::{Background, IntensityModel};
@@ -68,20 +70,14 @@ fn gradient_check(irf: Option<umbra::film::irf::Irf>) {
         .map(|i| 0.4 + 0.5 * ((i * 7 % 11) as f64 / 11.0))
         .collect();
     let mut objective = UmbraObjective {
-        scene: scene.clone(),
-        measured,
-        options: opts,
         intensity: IntensityModel {
             scale: true,
             background: Background::PerBin,
         },
-        albedo: 0.8,
-        two_sided: true,
-        reflectance: Default::default(),
         first_bin: 20,
         jitter_opl: 0.04,
-        time_offset_max_opl: 0.0,
         irf,
+        ..common::objective(&scene, opts, measured)
     };
     let eval = objective.evaluate(&mesh).unwrap();
     assert!(eval.loss > 1e-4, "{}", eval.loss);
@@ -132,20 +128,9 @@ fn objective_finds_a_time_offset_of_the_measurement() {
     umbra::film::jitter::JitterKernel::new(0.03 / 0.02, 0.017 / 0.02).apply(&mut measured, bins);
     let mesh = umbra::fit::fit_mesh(&scene.objects[0].mesh);
     let objective = |max: f64| UmbraObjective {
-        scene: scene.clone(),
-        measured: measured.clone(),
-        options: opts,
-        intensity: IntensityModel {
-            scale: true,
-            background: Background::Constant,
-        },
-        albedo: 0.8,
-        two_sided: true,
-        reflectance: Default::default(),
-        first_bin: 0,
         jitter_opl: 0.03,
         time_offset_max_opl: max,
-        irf: None,
+        ..common::objective(&scene, opts, measured.clone())
     };
     let (_, loss, _, offset) = objective(0.05).render(&mesh).unwrap();
     assert!((offset - 0.017).abs() < 2e-4, "offset {offset}");

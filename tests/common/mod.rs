@@ -306,3 +306,29 @@ pub fn on_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
         .unwrap()
         .install(f)
 }
+
+/// The fit's objective on `scene` (scale and constant background fitted, albedo 0.8,
+/// two-sided, Lambertian, every bin fitted, no jitter, offset or detector response):
+/// tests override the fields they are about.
+pub fn objective(
+    scene: &Scene,
+    options: RenderOptions,
+    measured: Vec<f32>,
+) -> umbra::fit::UmbraObjective {
+    umbra::fit::UmbraObjective {
+        scene: scene.clone(),
+        measured,
+        options,
+        intensity: umbra::fit::IntensityModel {
+            scale: true,
+            background: umbra::fit::Background::Constant,
+        },
+        albedo: 0.8,
+        two_sided: true,
+        reflectance: Default::default(),
+        first_bin: 0,
+        jitter_opl: 0.0,
+        time_offset_max_opl: 0.0,
+        irf: None,
+    }
+}

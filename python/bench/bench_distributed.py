@@ -22,6 +22,7 @@ import argparse
 import json
 import os
 import resource
+import tempfile
 import time
 
 import numpy as np
@@ -43,13 +44,13 @@ def _exhaustive(scan: int, bins: int) -> umbra.Scene:
         elif line.startswith("temporal_bins"):
             line = f"temporal_bins = {bins}"
         lines.append(line)
-    path = os.path.join(root, "scenes", f".bench-exhaustive-{scan}.toml")
-    with open(path, "w", encoding="utf-8") as f:
-        f.write("\n".join(lines) + "\n")
-    try:
+    # Into a temporary folder (not the repository), with the mesh found from there.
+    text = "\n".join(lines).replace('"meshes/', f'"{os.path.join(root, "scenes", "meshes")}/')
+    with tempfile.TemporaryDirectory(prefix="umbra-bench-") as d:
+        path = os.path.join(d, "exhaustive.toml")
+        with open(path, "w", encoding="utf-8") as f:
+            f.write(text + "\n")
         return umbra.load_scene(path)
-    finally:
-        os.unlink(path)
 
 
 def peak_mb() -> float:

@@ -99,7 +99,7 @@ pub fn array_f32<'py>(
 }
 
 /// The values of a float32 array in C order: in place when it is C-contiguous.
-fn c_order<'a>(a: &'a PyReadonlyArrayDyn<'_, f32>) -> Cow<'a, [f32]> {
+pub fn c_order<'a>(a: &'a PyReadonlyArrayDyn<'_, f32>) -> Cow<'a, [f32]> {
     match a.as_slice() {
         Ok(s) => Cow::Borrowed(s),
         Err(_) => Cow::Owned(a.as_array().iter().copied().collect()),

@@ -7,7 +7,7 @@
 
 use crate::options;
 use crate::scene::PyScene;
-use crate::{array_f32, array_f64, gradient_dict, run_interruptible, UmbraError};
+use crate::{array_f32, array_f64, c_order, gradient_dict, run_interruptible, UmbraError};
 use numpy::{IntoPyArray, PyArray2, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
@@ -84,11 +84,12 @@ pub fn grad_chunks<'py>(
     let r = options::resolve(&scene.inner, options)?;
     let (s, opts) = (&*r.scene, r.opts);
     let a = array_f32(adjoint_rows, "adjoint_rows")?;
-    let values: Vec<f32> = a.as_array().iter().copied().collect();
+    let values = c_order(&a);
+    let values: &[f32] = &values;
     let parts = run_interruptible(py, r.threads, |progress| {
         let geom = scene.geometry();
         let opts = gradient_options(s, &geom, opts)?;
-        adjoint::gradient_chunks(s, &geom, &opts, &values, start..stop, Some(&**progress))
+        adjoint::gradient_chunks(s, &geom, &opts, values, start..stop, Some(&**progress))
     })?;
     let out = PyList::empty(py);
     for p in parts {

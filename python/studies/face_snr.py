@@ -1,4 +1,6 @@
-"""How well the data determine each part of a fitted surface: the signal a cluster of faces
+"""(Superseded by `fit::determined`, which every fit on photon counts now runs, against the
+Poisson variance rather than the residual used here; kept as the session-17 analysis
+behind it.) How well the data determine each part of a fitted surface: the signal a cluster of faces
 adds to the fitted transient against the noise in the bins it lands in (issue 20, the
 confocal bunny; notes/low-signal-faces.md). An offline check on a finished ground-truth
 study (baselines.py --out DIR), no refit.

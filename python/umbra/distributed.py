@@ -83,16 +83,15 @@ def _bar(total: int, desc: str, progress: Union[bool, Callable[[int, int], Any]]
 
 
 def _shard_error(what: str, shard: int, rows: Tuple[int, int], e: BaseException) -> _umbra.UmbraError:
-    cause = getattr(e, "cause", None) or e
     return _umbra.UmbraError(f"{what}: shard {shard} (measurements {rows[0]}..{rows[1]}) failed: "
-                             f"{type(cause).__name__}: {cause}")
+                             f"{_cause(e)}")
 
 
-def _gather(ray, refs: Sequence[Any], what: str, rows: Sequence[Tuple[int, int]],
-            take: Callable[[int, Any], None], bar) -> None:
-    """Waits for every shard, handing each result to ``take(i, result)`` as it arrives
-    (so big results are written and dropped one at a time); the first failure is raised,
-    naming ``what`` and the shard, after cancelling the rest."""
+def _each(ray, refs: Sequence[Any], take: Callable[[int, Any], None], bar,
+          fail: Callable[[int, BaseException], None]) -> None:
+    """Waits for every task, handing each result to ``take(i, result)`` as it arrives (so
+    big results are written and dropped one at a time) and each failure to
+    ``fail(i, error)``; what ``fail`` raises cancels the tasks still running."""
     index = {r: i for i, r in enumerate(refs)}
     pending = list(refs)
     try:
@@ -102,8 +101,9 @@ def _gather(ray, refs: Sequence[Any], what: str, rows: Sequence[Tuple[int, int]]
             try:
                 result = ray.get(done[0])
             except Exception as e:  # Ray wraps the worker's error
-                raise _shard_error(what, i, rows[i], e) from e
-            take(i, result)
+                fail(i, e)
+            else:
+                take(i, result)
             if bar is not None:
                 bar.update(1)
     finally:
@@ -111,6 +111,19 @@ def _gather(ray, refs: Sequence[Any], what: str, rows: Sequence[Tuple[int, int]]
             ray.cancel(r, force=True)
         if bar is not None:
             bar.close()
+
+
+def _gather(ray, refs: Sequence[Any], what: str, rows: Sequence[Tuple[int, int]],
+            take: Callable[[int, Any], None], bar) -> None:
+    """:func:`_each` where the first failure is raised, naming ``what`` and the shard."""
+    def fail(i: int, e: BaseException) -> None:
+        raise _shard_error(what, i, rows[i], e) from e
+    _each(ray, refs, take, bar, fail)
+
+
+def _cause(e: BaseException) -> str:
+    cause = getattr(e, "cause", None) or e
+    return f"{type(cause).__name__}: {cause}"
 
 
 def _remote(ray, fn, cpus: int):
@@ -277,35 +290,27 @@ def render_many(scenes: Union[Mapping[str, Any], Iterable[Tuple[str, Any]]], out
         try:
             sc = s if isinstance(s, _umbra.Scene) else _umbra.load_scene(os.fspath(s))
         except Exception as e:
-            manifest[name] = dict(status="failed", error=f"{type(e).__name__}: {e}", settings=settings)
+            manifest[name] = dict(status="failed", error=_cause(e), settings=settings)
             continue
         refs.append(task.remote(sc, opts))
         which.append(name)
     _write_json(mpath, manifest)
-    bar = _bar(len(refs), "umbra render_many", progress)
-    index = {r: i for i, r in enumerate(refs)}
-    pending = list(refs)
-    while pending:
-        ready, pending = ray.wait(pending, num_returns=1)
-        name = which[index[ready[0]]]
-        try:
-            h, seconds = ray.get(ready[0])
-            path = os.path.join(out_dir, f"{name}.npy")
-            tmp = os.path.join(out_dir, f".{name}.npy.tmp")
-            with open(tmp, "wb") as f:
-                np.save(f, h)
-            os.replace(tmp, path)
-            manifest[name] = dict(status="done", file=f"{name}.npy", shape=list(h.shape),
-                                  settings=settings, seconds=seconds)
-        except Exception as e:
-            cause = getattr(e, "cause", None) or e
-            manifest[name] = dict(status="failed", error=f"{type(cause).__name__}: {cause}",
-                                  settings=settings)
+    def take(i: int, result: Any) -> None:
+        name = which[i]
+        h, seconds = result
+        path = os.path.join(out_dir, f"{name}.npy")
+        tmp = os.path.join(out_dir, f".{name}.npy.tmp")
+        with open(tmp, "wb") as f:
+            np.save(f, h)
+        os.replace(tmp, path)
+        manifest[name] = dict(status="done", file=f"{name}.npy", shape=list(h.shape),
+                              settings=settings, seconds=seconds)
         _write_json(mpath, manifest)
-        if bar is not None:
-            bar.update(1)
-    if bar is not None:
-        bar.close()
+
+    def fail(i: int, e: BaseException) -> None:
+        manifest[which[i]] = dict(status="failed", error=_cause(e), settings=settings)
+        _write_json(mpath, manifest)
+    _each(ray, refs, take, _bar(len(refs), "umbra render_many", progress), fail)
     return manifest
 
 
@@ -342,19 +347,11 @@ def fit_many(jobs: Union[Mapping[str, Mapping[str, Any]], Iterable[Tuple[str, Ma
         job.setdefault("threads", cpus_per_fit)
         refs.append(task.remote(job, os.path.join(out_root, name)))
     results: Dict[str, Any] = {}
-    bar = _bar(len(refs), "umbra fit_many", progress)
-    index = {r: i for i, r in enumerate(refs)}
-    pending = list(refs)
-    while pending:
-        ready, pending = ray.wait(pending, num_returns=1)
-        name = items[index[ready[0]]][0]
-        try:
-            results[name] = ray.get(ready[0])
-        except Exception as e:
-            cause = getattr(e, "cause", None) or e
-            results[name] = {"error": f"{type(cause).__name__}: {cause}"}
-        if bar is not None:
-            bar.update(1)
-    if bar is not None:
-        bar.close()
+
+    def take(i: int, result: Any) -> None:
+        results[items[i][0]] = result
+
+    def fail(i: int, e: BaseException) -> None:
+        results[items[i][0]] = {"error": _cause(e)}
+    _each(ray, refs, take, _bar(len(refs), "umbra fit_many", progress), fail)
     return results

@@ -4,13 +4,13 @@
 //! UMBRA_YTAL_DIR / UMBRA_LCT_DIR override the data directories.
 
 mod common;
-use common::shared_dir;
+use common::{capture::small_capture, shared_dir};
 
 use glam::Vec3;
 use std::path::PathBuf;
 use umbra::io::measured::{read_measured, Measured};
 use umbra::io::ytal::{read_ytal, write_ytal};
-use umbra::scene::{default::default_scene, CaptureType, ScanGrid, Scene};
+use umbra::scene::{default::default_scene, CaptureType, Scene};
 use umbra::transport::Transient;
 
 use rust_hdf5::H5File;
@@ -84,31 +84,6 @@ fn reads_the_capture_ytal_wrote() {
     m.check_against(&s).unwrap();
 }
 
-/// A small non-square scene (3 x 2 scan, 7 bins) of each capture type, and a transient whose
-/// every value differs.
-fn small(capture: CaptureType) -> (Scene, Transient) {
-    let mut s = default_scene().unwrap();
-    s.capture = capture;
-    s.scan = ScanGrid {
-        nx: 3,
-        ny: 2,
-        center: Vec3::new(0.1, -0.2, 0.0),
-        axis_u: Vec3::new(0.9, 0.0, 0.0),
-        axis_v: Vec3::new(0.0, 0.4, 0.0),
-    };
-    s.laser.target = Vec3::new(0.25, 0.3, 0.0);
-    s.film.temporal_bins = 7;
-    s.film.bin_width_opl = 0.003;
-    s.film.start_opl = 0.85;
-    s.account_first_and_last_bounces = capture == CaptureType::Confocal;
-    let shape = s.output_shape();
-    let n: usize = shape.iter().product();
-    let data = (0..n)
-        .map(|i| 0.5 + i as f32 * 1.0e-3 + (i as f32).sin())
-        .collect();
-    (s, Transient { data, shape })
-}
-
 #[test]
 fn write_then_read_gives_the_same_capture() {
     let dir = tmp_dir("roundtrip");
@@ -117,7 +92,7 @@ fn write_then_read_gives_the_same_capture() {
         CaptureType::Confocal,
         CaptureType::Exhaustive,
     ] {
-        let (scene, t) = small(capture);
+        let (scene, t) = small_capture(capture);
         let path = dir.join(format!("{}.hdf5", capture.name()));
         write_ytal(&path, &t, &scene).unwrap();
         let m = read_ytal(&path).unwrap();
@@ -190,7 +165,7 @@ fn write_then_read_gives_the_same_capture() {
 #[test]
 fn exhaustive_h_is_t_lx_ly_sx_sy() {
     let dir = tmp_dir("exhaustive");
-    let (scene, t) = small(CaptureType::Exhaustive);
+    let (scene, t) = small_capture(CaptureType::Exhaustive);
     let path = dir.join("e.h5");
     umbra::io::write_capture(&path, &t, &scene).unwrap();
     let f = H5File::open(&path).unwrap();
@@ -246,7 +221,7 @@ fn written_fields_have_the_types_ytal_writes() {
     // h5py's bool, the NULL volume_format and a vlen string scene_info.
     let ytal = H5File::open(lscene()).unwrap();
     let dir = tmp_dir("types");
-    let (scene, t) = small(CaptureType::Single);
+    let (scene, t) = small_capture(CaptureType::Single);
     let path = dir.join("single.hdf5");
     write_ytal(&path, &t, &scene).unwrap();
     let ours = H5File::open(&path).unwrap();
@@ -286,7 +261,7 @@ fn written_fields_have_the_types_ytal_writes() {
 #[test]
 fn truncated_or_garbled_files_are_errors_naming_the_file() {
     let dir = tmp_dir("garbled");
-    let (scene, t) = small(CaptureType::Confocal);
+    let (scene, t) = small_capture(CaptureType::Confocal);
     let good = dir.join("good.hdf5");
     write_ytal(&good, &t, &scene).unwrap();
     let bytes = std::fs::read(&good).unwrap();
@@ -335,7 +310,7 @@ fn message(r: umbra::Result<Measured>) -> String {
 #[test]
 fn bad_files_name_the_file_and_the_dataset() {
     let dir = tmp_dir("bad");
-    let (scene, t) = small(CaptureType::Confocal);
+    let (scene, t) = small_capture(CaptureType::Confocal);
 
     let no_h = dir.join("no_h.hdf5");
     {
@@ -541,7 +516,7 @@ fn lct_capture_reads_with_its_geometry() {
 #[test]
 fn npy_is_a_bare_transient() {
     let dir = tmp_dir("npy");
-    let (scene, t) = small(CaptureType::Confocal);
+    let (scene, t) = small_capture(CaptureType::Confocal);
     let path = dir.join("h.npy");
     umbra::io::write_capture(&path, &t, &scene).unwrap();
     let m = read_measured(&path).unwrap();

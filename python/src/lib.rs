@@ -12,6 +12,7 @@
 //!   calling thread sleeps without the GIL, waking every 20 ms to check for signals and
 //!   at once when the work ends.
 
+mod files;
 mod fit;
 mod options;
 mod scene;
@@ -107,7 +108,7 @@ pub fn c_order<'a>(a: &'a PyReadonlyArrayDyn<'_, f32>) -> Cow<'a, [f32]> {
 }
 
 /// An array input of the render's shape, checked.
-fn like_render<'py>(
+pub(crate) fn like_render<'py>(
     obj: &Bound<'py, PyAny>,
     name: &str,
     shape: &[usize],
@@ -290,6 +291,9 @@ fn _umbra(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(shards::grad_chunk_layout, m)?)?;
     m.add_function(wrap_pyfunction!(shards::grad_chunks, m)?)?;
     m.add_function(wrap_pyfunction!(shards::grad_combine, m)?)?;
+    m.add_function(wrap_pyfunction!(files::save, m)?)?;
+    m.add_function(wrap_pyfunction!(files::ytal_chunk_rows, m)?)?;
+    m.add_function(wrap_pyfunction!(files::write_ytal_blocks, m)?)?;
     m.add_function(wrap_pyfunction!(fit::fit, m)?)?;
     m.add_function(wrap_pyfunction!(validation::capture, m)?)?;
     m.add_function(wrap_pyfunction!(validation::mc3_samples, m)?)?;

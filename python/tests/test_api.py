@@ -1,5 +1,5 @@
 """The Python API beyond the basics of test_package.py: every CLI option as a keyword,
-grad's types and its target/loss form, several hidden objects, `umbra.fit`, and the
+grad's types and its target/loss form, several hidden objects, `umbra.fit`, `umbra.save`, and the
 package's typing (version, py.typed, stubs)."""
 from __future__ import annotations
 
@@ -179,6 +179,23 @@ def test_scene_geometry_cache_follows_edits():
     fresh.set_vertices(v)
     fresh.set_albedo(0.3)
     assert np.array_equal(umbra.render(s, model="tri3"), umbra.render(fresh, model="tri3"))
+
+
+def test_save_writes_each_format_atomically_and_checks_the_shape(tmp_path: Path):
+    s = small_scene()
+    h = umbra.render(s, model="tri3")
+    umbra.save(tmp_path / "h.npy", h, s)
+    assert np.array_equal(np.load(tmp_path / "h.npy"), h)
+    umbra.save(str(tmp_path / "h.hdf5"), h, s)
+    assert (tmp_path / "h.hdf5").read_bytes()[:8] == b"\x89HDF\r\n\x1a\n"
+    umbra.save(tmp_path / "h.exr", h.astype(np.float64), s)  # converted once
+    assert (tmp_path / "h.exr").stat().st_size > 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["h.exr", "h.hdf5", "h.npy"]
+    with pytest.raises(umbra.UmbraError, match=r"transient has shape \(6, 6\), the render \(6, 6, 128\)"):
+        umbra.save(tmp_path / "x.npy", h[..., 0], s)
+    with pytest.raises(umbra.UmbraError, match=r"x\.txt: unknown output format"):
+        umbra.save(tmp_path / "x.txt", h, s)
+    assert not (tmp_path / "x.npy").exists()
 
 
 def test_version_typing_and_stubs():

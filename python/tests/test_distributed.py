@@ -24,7 +24,9 @@ import ray  # noqa: E402  (installed by ./test.sh)
 
 import umbra  # noqa: E402
 import umbra.distributed as ud  # noqa: E402
+from conftest import require_ytal  # noqa: E402
 from scenes_two import two_object_scene  # noqa: E402
+from ytal_reader import read_with_ytal  # noqa: E402
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -68,6 +70,24 @@ def test_a_render_streams_into_an_npy_file(tmp_path: Path):
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".umbra-")] == []
     with pytest.raises(ValueError, match=r"\.npy"):
         ud.render(s, model="tri3", out=str(tmp_path / "h.exr"))
+
+
+@pytest.mark.parametrize("capture", ["confocal", "exhaustive"])
+def test_a_render_streams_into_a_ytal_capture_that_ytal_reads(tmp_path: Path, capture: str):
+    python = require_ytal()
+    s = two_object_scene(tmp_path, capture, scan=4)
+    local = umbra.render(s, model="path", spp=8, seed=2)
+    out = tmp_path / "h.hdf5"
+    assert ud.render(s, model="path", spp=8, seed=2, shards=3, out=str(out), progress=False) == str(out)
+    meta, H, _, _ = read_with_ytal(python, out, tmp_path)
+    assert meta["H_format"] == ("T_Lx_Ly_Sx_Sy" if capture == "exhaustive" else "T_Sx_Sy")
+    axes = tuple(range(local.ndim))[::-1]
+    assert same_bits(H, np.ascontiguousarray(local.transpose(axes))), f"{capture}: y-tal's H differs"
+    # A failing shard: its error, and no file nor temporary left.
+    out2 = tmp_path / "bad.h5"
+    with pytest.raises(umbra.UmbraError, match=r"render: shard \d+ \(measurements \d+\.\.\d+\)"):
+        ud.render(s, model="bogus", out=str(out2), progress=False)
+    assert not out2.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".bad.h5")]
 
 
 def _pause_first(flag_dir: str, start: int, stop: int) -> None:  # runs in a Ray worker
@@ -126,6 +146,26 @@ def test_render_many_skips_what_is_done_and_reports_a_failure(tmp_path: Path):
     # Other settings are another data set: nothing is skipped.
     third = ud.render_many({"a": scenes["a"]}, str(out), model="tri3", spp=2, progress=False)
     assert (out / "a.npy").stat().st_mtime_ns != stamp and third["a"]["settings"]["spp"] == 2
+
+
+def test_render_many_writes_ytal_captures_from_the_workers(tmp_path: Path):
+    python = require_ytal()
+    scenes = {n: two_object_scene(tmp_path / n, "confocal", scan=3) for n in "ab"
+              if (tmp_path / n).mkdir() is None}
+    out = tmp_path / "set"
+    m = ud.render_many(scenes, str(out), model="tri3", format="hdf5", shared_dir=True,
+                       progress=False)
+    for n in "ab":
+        assert m[n]["status"] == "done" and m[n]["file"] == f"{n}.hdf5"
+        assert m[n]["settings"]["format"] == "hdf5"
+        _, H, _, _ = read_with_ytal(python, out / f"{n}.hdf5", tmp_path)
+        assert same_bits(H, np.ascontiguousarray(umbra.render(scenes[n], model="tri3").transpose(2, 1, 0)))
+    assert sorted(p.name for p in out.iterdir()) == ["a.hdf5", "b.hdf5", "manifest.json"]
+    # The .npy data set in the same folder is another one: rendered, not skipped.
+    again = ud.render_many(scenes, str(out), model="tri3", shared_dir=True, progress=False)
+    assert again["a"]["file"] == "a.npy" and (out / "a.npy").is_file()
+    with pytest.raises(ValueError, match="format='exr'"):
+        ud.render_many(scenes, str(out), format="exr", progress=False)
 
 
 def test_fit_many_fits_each_job_into_its_folder_and_resumes(tmp_path: Path):

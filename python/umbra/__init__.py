@@ -6,6 +6,7 @@
     g = umbra.grad(scene, target=M, spp=256, model="mc3")   # or adjoint=dLoss/dH
     g["loss"], g["vertices"][0], g["albedo"]           # one (V_k, 3) array per object
     fit = umbra.fit(scene, M, init="plane")             # the fitting of `umbra fit`
+    umbra.save("H.hdf5", H, scene)                      # y-tal's capture (or .npy, .exr)
 
 Models (the same names as the CLI and scene files): ``tri3`` (noise-free per-triangle
 three-bounce), ``mc3`` (Monte Carlo three-bounce), ``path`` (multi-bounce), ``auto``.
@@ -24,12 +25,12 @@ import numpy as np
 import numpy.typing as npt
 
 from ._umbra import Scene, UmbraError, capture, default_scene, mc3_samples, tri3_subtriangles
-from ._umbra import __version__, option_names
+from ._umbra import __version__, option_names, save
 from ._umbra import fit as _fit, grad as _grad, render as _render
 from ._umbra import load_scene as _load_path, load_scene_xml as _load_xml
 
 __all__ = ["Scene", "UmbraError", "load_scene", "default_scene", "render", "grad", "fit",
-           "dict_to_xml", "option_names", "capture", "mc3_samples", "tri3_subtriangles",
+           "dict_to_xml", "option_names", "save", "capture", "mc3_samples", "tri3_subtriangles",
            "__version__"]
 
 PathLike = Union[str, "os.PathLike[str]"]

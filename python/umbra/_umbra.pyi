@@ -7,7 +7,7 @@ explicit keyword arguments) are in ``umbra/__init__.py``.
 from __future__ import annotations
 
 import os
-from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
+from typing import Any, Callable, Dict, Iterable, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -163,6 +163,14 @@ def tri3_subtriangles(scene: Scene, subdivision: Optional[float] = None) -> Dict
 # The pieces of a render and a gradient that umbra.distributed sends to Ray workers.
 def _scene_from_wire(bytes: bytes) -> Scene:
     """A scene from ``Scene.__reduce__``'s bytes (pickle's reader), checked like a scene file."""
+def save(path: Union[str, "os.PathLike[str]"], transient: npt.ArrayLike, scene: Scene) -> None:
+    """Writes a render of ``scene`` to ``path``: ``.npy``, ``.exr`` or y-tal ``.hdf5``
+    (by the extension, as ``umbra render -o``), atomically."""
+def ytal_chunk_rows(scene: Scene) -> int:
+    """Rows per HDF5 chunk of a y-tal capture's ``H`` (blocks cut on multiples fill whole chunks)."""
+def write_ytal_blocks(path: Union[str, "os.PathLike[str]"], scene: Scene,
+                      blocks: Iterable[Tuple[int, npt.ArrayLike]]) -> None:
+    """A y-tal capture of ``scene`` from ``(first_row, rows)`` blocks in any order."""
 def render_measurements(scene: Scene, start: int, stop: int, **options: Any) -> np.ndarray:
     """Rows ``start..stop`` of the render (measurements in order), ``(stop - start, T)``."""
 def grad_chunk_layout(scene: Scene) -> List[Tuple[int, int]]:

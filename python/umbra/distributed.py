@@ -5,13 +5,14 @@ retries; nothing here is a scheduler of its own.
 - :func:`render` splits one render's measurements (scan points; laser points too for
   exhaustive captures) into shards and returns exactly ``umbra.render``'s array, bit for
   bit: each measurement's samples depend on the seed and its index alone, not on where
-  it runs. ``out="x.npy"`` streams the shards into a memory-mapped file instead of one
-  process's memory.
+  it runs. ``out="x.npy"`` (a memory map) or ``out="x.hdf5"`` (y-tal's capture) streams
+  the shards into a file as they arrive instead of into one process's memory.
 - :func:`grad` splits a gradient into the renderer's fixed chunks of measurements
   (``umbra::adjoint::gradient_chunks``); the chunks' shares are added in chunk order, so
   the result is ``umbra.grad``'s, bit for bit, for any number of workers.
-- :func:`render_many` renders a data set, one ``.npy`` per scene and a
-  ``manifest.json``; a rerun skips what is complete, a failed scene is reported, not fatal.
+- :func:`render_many` renders a data set, one ``.npy`` (or y-tal ``.hdf5``) per scene and
+  a ``manifest.json``; a rerun skips what is complete, a failed scene is reported, not
+  fatal; on a shared file system the workers write the files themselves.
 - :func:`fit_many` runs several ``umbra.fit`` at once, each in its own output folder with
   its own checkpoint (a rerun resumes them).
 
@@ -87,11 +88,10 @@ def _shard_error(what: str, shard: int, rows: Tuple[int, int], e: BaseException)
                              f"{_cause(e)}")
 
 
-def _each(ray, refs: Sequence[Any], take: Callable[[int, Any], None], bar,
-          fail: Callable[[int, BaseException], None]) -> None:
-    """Waits for every task, handing each result to ``take(i, result)`` as it arrives (so
-    big results are written and dropped one at a time) and each failure to
-    ``fail(i, error)``; what ``fail`` raises cancels the tasks still running."""
+def _arrivals(ray, refs: Sequence[Any], bar):
+    """Yields ``(i, result, error)`` for each task as it finishes (so big results are
+    written and dropped one at a time); closing the generator early cancels the tasks
+    still running."""
     index = {r: i for i, r in enumerate(refs)}
     pending = list(refs)
     try:
@@ -101,9 +101,9 @@ def _each(ray, refs: Sequence[Any], take: Callable[[int, Any], None], bar,
             try:
                 result = ray.get(done[0])
             except Exception as e:  # Ray wraps the worker's error
-                fail(i, e)
+                yield i, None, e
             else:
-                take(i, result)
+                yield i, result, None
             if bar is not None:
                 bar.update(1)
     finally:
@@ -111,6 +111,21 @@ def _each(ray, refs: Sequence[Any], take: Callable[[int, Any], None], bar,
             ray.cancel(r, force=True)
         if bar is not None:
             bar.close()
+
+
+def _each(ray, refs: Sequence[Any], take: Callable[[int, Any], None], bar,
+          fail: Callable[[int, BaseException], None]) -> None:
+    """Hands each result to ``take(i, result)`` as it arrives and each failure to
+    ``fail(i, error)``; what either raises cancels the tasks still running."""
+    arrivals = _arrivals(ray, refs, bar)
+    try:
+        for i, result, error in arrivals:
+            if error is not None:
+                fail(i, error)
+            else:
+                take(i, result)
+    finally:
+        arrivals.close()
 
 
 def _gather(ray, refs: Sequence[Any], what: str, rows: Sequence[Tuple[int, int]],
@@ -163,6 +178,10 @@ def _atomic_npy(path: str, shape: Sequence[int]):
     return mm, finish, tmp
 
 
+def _is_hdf5(path: str) -> bool:
+    return str(path).lower().endswith((".hdf5", ".h5"))
+
+
 def render(scene: "_umbra.Scene", *, spp: Optional[int] = None, model: Optional[str] = None,
            seed: Optional[int] = None, shards: Optional[int] = None, out: Optional[str] = None,
            cpus_per_shard: int = 1, progress: Union[bool, Callable[[int, int], Any]] = True,
@@ -170,21 +189,48 @@ def render(scene: "_umbra.Scene", *, spp: Optional[int] = None, model: Optional[
     """``umbra.render(scene, spp=..., model=..., seed=..., **options)`` on the Ray cluster,
     the same array bit for bit. ``shards``: how many pieces (default four per CPU of the
     cluster, at most one per measurement); each runs on ``cpus_per_shard`` cores (its
-    render threads). ``out``: a ``.npy`` path to stream the result into (written at a
-    temporary name and moved into place when complete; returns the memory map opened
-    read-only) instead of returning an in-memory array. ``progress``: a tqdm bar (True,
-    when tqdm is installed), a callback ``progress(done, total)`` or False."""
+    render threads). ``out``: a file to stream the result into, as the shards arrive,
+    instead of gathering it in this process's memory; it is written at a temporary name
+    and moved into place when complete:
+
+    - ``x.npy``: a memory map of the render (returned, opened read-only);
+    - ``x.hdf5`` / ``x.h5``: y-tal's capture (``tal.io.read_capture`` reads it; ``H`` is
+      the render transposed, stored in chunks of one scan row, or one scan point's laser
+      grid for exhaustive capture; shards are cut on those chunks); returns the path.
+
+    ``progress``: a tqdm bar (True, when tqdm is installed), a callback
+    ``progress(done, total)`` or False."""
     ray = _ray()
     shape = tuple(scene.shape)
     n, bins = int(np.prod(shape[:-1])), shape[-1]
     opts = _options(spp, model, seed, cpus_per_shard, options)
-    rows = _even(n, shards or 4 * _workers(ray))
+    parts = shards or 4 * _workers(ray)
+    hdf5 = out is not None and _is_hdf5(out)
+    if out is not None and not hdf5 and not str(out).endswith(".npy"):
+        raise ValueError(f"out={out!r}: a .npy or a y-tal .hdf5 / .h5 path")
+    if hdf5:
+        unit = _umbra.ytal_chunk_rows(scene)
+        rows = [(a * unit, b * unit) for a, b in _even(n // unit, parts)]
+    else:
+        rows = _even(n, parts)
     task = _remote(ray, _render_rows, cpus_per_shard)
     scene_ref = ray.put(scene)
     refs = [task.remote(scene_ref, a, b, opts, _on_shard) for a, b in rows]
+    bar = _bar(len(rows), "umbra render", progress)
+    if hdf5:
+        arrivals = _arrivals(ray, refs, bar)
+
+        def blocks():
+            for i, block, error in arrivals:
+                if error is not None:
+                    raise _shard_error("render", i, rows[i], error) from error
+                yield rows[i][0], block
+        try:
+            _umbra.write_ytal_blocks(out, scene, blocks())
+        finally:
+            arrivals.close()
+        return out
     if out is not None:
-        if not str(out).endswith(".npy"):
-            raise ValueError(f"out={out!r}: a .npy path (the render streams into a memory map)")
         mm, finish, tmp = _atomic_npy(out, shape)
         flat = mm.reshape(n, bins)
     else:
@@ -195,7 +241,7 @@ def render(scene: "_umbra.Scene", *, spp: Optional[int] = None, model: Optional[
         a, b = rows[i]
         flat[a:b] = block
     try:
-        _gather(ray, refs, "render", rows, take, _bar(len(rows), "umbra render", progress))
+        _gather(ray, refs, "render", rows, take, bar)
     except BaseException:
         if out is not None:
             del mm, flat
@@ -246,23 +292,56 @@ def _write_json(path: str, value: Any) -> None:
     os.replace(tmp, path)
 
 
-def _render_scene(scene, opts):
+def _save(path: str, h: np.ndarray, scene) -> None:
+    """``h`` to ``path`` atomically: ``.npy``, or y-tal's capture for ``.hdf5``."""
+    if _is_hdf5(path):
+        _umbra.save(path, h, scene)
+        return
+    d, name = os.path.split(path)
+    tmp = os.path.join(d, f".{name}.tmp{os.getpid()}")
+    try:
+        with open(tmp, "wb") as f:
+            np.save(f, h)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _render_scene(scene, opts, path):
+    """Renders one scene of a data set: with ``path`` (a shared folder), the worker writes
+    the file and returns only its shape; else the array comes back."""
     t0 = time.perf_counter()
     h = _umbra.render(scene, **opts)
-    return h, time.perf_counter() - t0
+    seconds = time.perf_counter() - t0
+    if path is None:
+        return h, list(h.shape), seconds
+    _save(path, h, scene)
+    return None, list(h.shape), seconds
+
+
+FORMATS = {"npy": ".npy", "hdf5": ".hdf5"}
 
 
 def render_many(scenes: Union[Mapping[str, Any], Iterable[Tuple[str, Any]]], out_dir: str, *,
                 spp: Optional[int] = None, model: Optional[str] = None, seed: Optional[int] = None,
-                cpus_per_scene: int = 1, progress: Union[bool, Callable[[int, int], Any]] = True,
+                format: str = "npy", shared_dir: bool = False, cpus_per_scene: int = 1,
+                progress: Union[bool, Callable[[int, int], Any]] = True,
                 **options: Any) -> Dict[str, Any]:
     """A data set: each ``(name, scene)`` (a ``umbra.Scene`` or a scene file's path)
-    rendered with the same settings into ``out_dir/NAME.npy``, and ``out_dir/manifest.json``
-    (per name: file, shape, settings, seconds, or the error), rewritten after every
-    scene. A rerun with the same settings skips the scenes already done; a scene that fails
-    (a bad file, a render error) is recorded and reported, and the rest go on. Returns the
-    manifest."""
+    rendered with the same settings into ``out_dir/NAME.npy`` (``format="hdf5"``:
+    ``NAME.hdf5``, y-tal's capture with the scene's grid and film), and
+    ``out_dir/manifest.json`` (per name: file, shape, settings, seconds, or the error),
+    rewritten after every scene. A rerun with the same settings skips the scenes already
+    done; a scene that fails (a bad file, a render error) is recorded and reported, and
+    the rest go on. ``shared_dir=True``: ``out_dir`` is on a file system every worker
+    sees (NFS, a cluster's shared disk), so each worker writes its scene's file itself
+    and only its shape comes back; by default the renders come back to this process,
+    which writes them. Returns the manifest."""
     ray = _ray()
+    if format not in FORMATS:
+        raise ValueError(f"render_many: format={format!r}: one of {sorted(FORMATS)}")
     items = list(scenes.items() if isinstance(scenes, Mapping) else scenes)
     names = [n for n, _ in items]
     if len(set(names)) != len(names):
@@ -278,6 +357,10 @@ def render_many(scenes: Union[Mapping[str, Any], Iterable[Tuple[str, Any]]], out
             manifest = json.load(f)
     opts = _options(spp, model, seed, cpus_per_scene, options)
     settings = {k: v for k, v in opts.items() if k != "threads"}
+    settings["format"] = format
+
+    def file_of(name: str) -> str:
+        return f"{name}{FORMATS[format]}"
 
     def done(name):
         e = manifest.get(name, {})
@@ -285,25 +368,25 @@ def render_many(scenes: Union[Mapping[str, Any], Iterable[Tuple[str, Any]]], out
                 and os.path.exists(os.path.join(out_dir, e.get("file", ""))))
     todo = [(n, s) for n, s in items if not done(n)]
     task = _remote(ray, _render_scene, cpus_per_scene)
-    refs, which = [], []
+    refs, which, kept = [], [], {}
     for name, s in todo:
         try:
             sc = s if isinstance(s, _umbra.Scene) else _umbra.load_scene(os.fspath(s))
         except Exception as e:
             manifest[name] = dict(status="failed", error=_cause(e), settings=settings)
             continue
-        refs.append(task.remote(sc, opts))
+        path = os.path.abspath(os.path.join(out_dir, file_of(name)))
+        refs.append(task.remote(sc, opts, path if shared_dir else None))
         which.append(name)
+        kept[name] = sc
     _write_json(mpath, manifest)
+
     def take(i: int, result: Any) -> None:
         name = which[i]
-        h, seconds = result
-        path = os.path.join(out_dir, f"{name}.npy")
-        tmp = os.path.join(out_dir, f".{name}.npy.tmp")
-        with open(tmp, "wb") as f:
-            np.save(f, h)
-        os.replace(tmp, path)
-        manifest[name] = dict(status="done", file=f"{name}.npy", shape=list(h.shape),
+        h, shape, seconds = result
+        if h is not None:
+            _save(os.path.join(out_dir, file_of(name)), h, kept[name])
+        manifest[name] = dict(status="done", file=file_of(name), shape=shape,
                               settings=settings, seconds=seconds)
         _write_json(mpath, manifest)
 

@@ -2,6 +2,7 @@
 //! renders, and the total energy's mean and standard error over independent seeds.
 #![allow(dead_code)]
 
+pub mod capture;
 pub mod exact_interreflection;
 pub mod exact_shadows;
 pub mod patch;

@@ -46,7 +46,7 @@ use std::path::Path;
 
 mod fields;
 mod write;
-pub use write::write_ytal;
+pub use write::{chunk_rows, write_ytal, write_ytal_blocks, BlockSink};
 
 /// y-tal's `HFormat` (`tal.enums`): member names, indexed by value. HDF5 converts enums by
 /// member name, so every member is here even if we never write it.
@@ -157,9 +157,6 @@ fn permute(data: &[f32], shape: &[usize], perm: &[usize]) -> (Vec<f32>, Vec<usiz
 /// y-tal `(T, Sx, Sy)` -> Umbra `(sy, sx, T)`; `(T, Lx, Ly, Sx, Sy)` -> `(sy, sx, ly, lx, T)`.
 const FROM_YTAL_3: [usize; 3] = [2, 1, 0];
 const FROM_YTAL_5: [usize; 5] = [4, 3, 2, 1, 0];
-/// Umbra -> y-tal.
-const TO_YTAL_3: [usize; 3] = [2, 1, 0];
-const TO_YTAL_5: [usize; 5] = [4, 3, 2, 1, 0];
 
 /// Reads a y-tal capture (see the module docs); errors name the file and the dataset.
 pub fn read_ytal(path: &Path) -> Result<Measured> {

@@ -46,16 +46,64 @@ impl Sampler {
     pub fn next_2d(&mut self) -> [f32; 2] {
         let d = self.dim;
         self.dim += 2;
+        self.pair_at(d)
+    }
+
+    /// Next single number in [0, 1) (consumes a pair's first coordinate).
+    #[inline]
+    pub fn next_1d(&mut self) -> f32 {
+        let d = self.dim;
+        self.dim += 2;
+        self.first_at(d)
+    }
+
+    /// Sets the next pair aside, to be read (or not) later: the numbers after it are the
+    /// same whether or not it is ever read, and reading it costs only when a path needs it
+    /// (a finite spot's point, a Russian roulette decision).
+    #[inline]
+    pub fn reserve_2d(&mut self) -> Reserved {
+        let d = self.dim;
+        self.dim += 2;
+        Reserved(d)
+    }
+
+    /// The pair set aside as `r`: what [`Sampler::next_2d`] would have returned then.
+    #[inline]
+    pub fn get_2d(&self, r: Reserved) -> [f32; 2] {
+        self.pair_at(r.0)
+    }
+
+    /// The first number of the pair set aside as `r`: what [`Sampler::next_1d`] would
+    /// have returned then.
+    #[inline]
+    pub fn get_1d(&self, r: Reserved) -> f32 {
+        self.first_at(r.0)
+    }
+
+    /// The scramble seeds of pair `pair`: index shuffle, x, y (from one 64-bit hash of
+    /// the key and the pair).
+    #[inline]
+    fn pair_seeds(&self, pair: u32) -> (u32, u32, u32) {
+        let h = mix64(self.key ^ (pair as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
+        let seed_y = (h.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as u32;
+        (h as u32, (h >> 32) as u32, seed_y)
+    }
+
+    /// The Owen-scrambled index (Burley's shuffle) of this sample for pair `pair`: the
+    /// Sobol' point it reads. Scrambling works on bit-reversed numbers; Sobol' dimension
+    /// 0 is the bit-reversed index, so its coordinate needs no table.
+    #[inline]
+    fn shuffled(&self, seed_index: u32) -> u32 {
+        laine_karras(self.index_reversed, seed_index).reverse_bits()
+    }
+
+    /// Dimensions `d, d + 1`.
+    #[inline]
+    fn pair_at(&self, d: u32) -> [f32; 2] {
         let pair = d / 2;
         if pair < SOBOL_PAIRS {
-            // Three independent scramble seeds from one 64-bit hash of (key, pair).
-            let h = mix64(self.key ^ (pair as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
-            let (seed_index, seed_x) = (h as u32, (h >> 32) as u32);
-            let seed_y = (h.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as u32;
-            // Owen-scrambled index (Burley's shuffle), then each coordinate scrambled.
-            // Scrambling works on bit-reversed numbers; Sobol' dimension 0 is the
-            // bit-reversed index, so its coordinate needs no table.
-            let i = laine_karras(self.index_reversed, seed_index).reverse_bits();
+            let (seed_index, seed_x, seed_y) = self.pair_seeds(pair);
+            let i = self.shuffled(seed_index);
             let x = laine_karras(i, seed_x);
             let y = laine_karras(sobol_dim1_reversed(i), seed_y);
             [to_unit(x.reverse_bits()), to_unit(y.reverse_bits())]
@@ -64,9 +112,16 @@ impl Sampler {
         }
     }
 
-    /// Next single number in [0, 1) (consumes a pair's first coordinate).
-    pub fn next_1d(&mut self) -> f32 {
-        self.next_2d()[0]
+    /// Dimension `d` alone (the first of a pair): [`Sampler::pair_at`]`(d)[0]`.
+    #[inline]
+    fn first_at(&self, d: u32) -> f32 {
+        let pair = d / 2;
+        if pair < SOBOL_PAIRS {
+            let (seed_index, seed_x, _) = self.pair_seeds(pair);
+            to_unit(laine_karras(self.shuffled(seed_index), seed_x).reverse_bits())
+        } else {
+            self.hashed(d)
+        }
     }
 
     fn hashed(&self, d: u32) -> f32 {
@@ -74,6 +129,10 @@ impl Sampler {
         to_unit((h >> 32) as u32)
     }
 }
+
+/// A pair of a sample's dimensions set aside by [`Sampler::reserve_2d`].
+#[derive(Clone, Copy, Debug)]
+pub struct Reserved(u32);
 
 /// Maps 32 random bits to [0, 1) with 24 bits of precision (never returns 1).
 fn to_unit(x: u32) -> f32 {
@@ -155,6 +214,22 @@ mod tests {
         let mut s = Sampler::new(7, 3, 11);
         let mut t = Sampler::new(7, 4, 11);
         assert_ne!(s.next_2d(), t.next_2d());
+    }
+
+    #[test]
+    fn reserved_pairs_read_as_the_pairs_drawn_in_their_place() {
+        for index in [0u32, 5, 1000] {
+            let mut a = Sampler::new(9, 2, index);
+            let mut b = Sampler::new(9, 2, index);
+            for _ in 0..(SOBOL_PAIRS + 3) {
+                let (pair, first) = (a.next_2d(), b.clone().next_1d());
+                let r = b.reserve_2d();
+                assert_eq!(pair, b.get_2d(r));
+                assert_eq!(first, b.get_1d(r));
+                assert_eq!(pair[0], first);
+            }
+            assert_eq!(a.next_2d(), b.next_2d());
+        }
     }
 
     #[test]

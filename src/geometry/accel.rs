@@ -1,10 +1,13 @@
-//! Ray queries against the whole scene: hidden triangles plus the relay wall (two
-//! triangles), in one obvhs CWBVH. Closest hit for continuing paths, occlusion for
-//! visibility `V(a, b)` between two surface points.
+//! Ray queries against the whole scene: the hidden triangles (in an obvhs CWBVH, or,
+//! when there are few, in SIMD packets of four: [`super::packet`]) and the relay wall, a
+//! parallelogram intersected analytically ([`super::wall_plane`]). Closest hit for
+//! continuing paths, occlusion for visibility `V(a, b)` between two surface points.
 //!
 //! Rays that start or end on a surface are shortened by `eps` (a fraction of the scene
 //! size) at both ends, so a surface does not shadow itself.
 
+use super::packet::{self, TriPacket};
+use super::wall_plane::WallPlane;
 use crate::geometry::sampling::AreaDistribution;
 use crate::scene::Scene;
 use glam::{Vec3, Vec3A};
@@ -14,10 +17,10 @@ use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 use std::time::Duration;
 
-/// Scenes with at most this many triangles (wall included) skip the BVH: testing every
-/// triangle is cheaper than a CWBVH traversal's fixed cost (measured with callgrind on a
-/// 6-triangle scene: ~450 instructions per shadow ray through the BVH).
-const BRUTE_FORCE_PRIMS: usize = 8;
+/// Scenes with at most this many hidden triangles test them all, four at a time
+/// ([`packet`]), instead of traversing a BVH: below it a packet loop costs less than a
+/// CWBVH traversal's fixed cost (~450 instructions per shadow ray, callgrind).
+pub const PACKET_TRIANGLES: usize = 64;
 
 /// What a primitive belongs to.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -30,14 +33,16 @@ pub enum SurfaceKind {
     Wall,
 }
 
-/// Per-primitive data in BVH order: the triangle, its unit geometric normal, its kind.
-#[derive(Clone, Copy, Debug)]
-struct Prim {
-    tri: Triangle,
-    normal: Vec3,
-    kind: SurfaceKind,
-    /// Index into the flat list of hidden triangles (`u32::MAX` for the wall).
-    flat: u32,
+/// The hidden triangles' acceleration structure.
+enum HiddenAccel {
+    /// Every triangle, in flat order, four to a packet.
+    Packets(Vec<TriPacket>),
+    /// A CWBVH, with the triangles and their flat indices in BVH order.
+    Bvh {
+        bvh: CwBvh,
+        tris: Vec<Triangle>,
+        flat: Vec<u32>,
+    },
 }
 
 /// A ray's closest hit.
@@ -84,8 +89,8 @@ impl HiddenTri {
 
 /// The scene's surfaces ready for queries and sampling.
 pub struct SceneGeometry {
-    bvh: CwBvh,
-    prims: Vec<Prim>,
+    accel: HiddenAccel,
+    wall: WallPlane,
     /// Hidden triangles by flat index: (object, local triangle).
     pub flat_to_local: Vec<(u32, u32)>,
     /// Hidden triangles by flat index.
@@ -105,7 +110,6 @@ pub struct SceneGeometry {
 impl SceneGeometry {
     pub fn build(scene: &Scene) -> SceneGeometry {
         let mut tris = Vec::new();
-        let mut meta = Vec::new();
         let mut flat_to_local = Vec::new();
         let mut areas = Vec::new();
         let mut hidden = Vec::new();
@@ -114,7 +118,6 @@ impl SceneGeometry {
             for t in 0..o.mesh.triangles.len() {
                 let [a, b, c] = o.mesh.triangle(t);
                 extent = extent.max(a.length()).max(b.length()).max(c.length());
-                let flat = flat_to_local.len() as u32;
                 flat_to_local.push((oi as u32, t as u32));
                 areas.push(o.mesh.area(t));
                 let idx = o.mesh.triangles[t];
@@ -129,14 +132,7 @@ impl SceneGeometry {
                     retro: o.reflectance.is_retro(),
                     retro_falloff: o.reflectance.falloff(),
                 });
-                tris.push(tri(a, b, c));
-                meta.push((
-                    SurfaceKind::Hidden {
-                        object: oi as u32,
-                        tri: t as u32,
-                    },
-                    flat,
-                ));
+                tris.push([a, b, c]);
             }
         }
         let w = &scene.wall;
@@ -155,39 +151,27 @@ impl SceneGeometry {
             areas_with_wall.push(0.5 * (b - a).cross(c - a).length());
             centroids_with_wall.push((a + b + c) / 3.0);
         }
-        for t in [tri(c00, c10, c11), tri(c00, c11, c01)] {
-            tris.push(t);
-            meta.push((SurfaceKind::Wall, u32::MAX));
-        }
-        let mut build_time = Duration::ZERO;
-        let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
-            &tris,
-            BvhBuildParams::medium_build(),
-            &mut build_time,
-        );
+        let accel = if tris.len() <= PACKET_TRIANGLES {
+            HiddenAccel::Packets(packet::pack(&tris))
+        } else {
+            let tris: Vec<Triangle> = tris.iter().map(|&[a, b, c]| tri(a, b, c)).collect();
+            let mut build_time = Duration::ZERO;
+            let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
+                &tris,
+                BvhBuildParams::medium_build(),
+                &mut build_time,
+            );
+            let order = &bvh.primitive_indices;
+            HiddenAccel::Bvh {
+                tris: order.iter().map(|&i| tris[i as usize]).collect(),
+                flat: order.clone(),
+                bvh,
+            }
+        };
         let wall_normal = w.normal();
-        let prims = bvh
-            .primitive_indices
-            .iter()
-            .map(|&i| {
-                let t = tris[i as usize];
-                let (kind, flat) = meta[i as usize];
-                let normal = if kind == SurfaceKind::Wall {
-                    wall_normal
-                } else {
-                    Vec3::from((t.v1 - t.v0).cross(t.v2 - t.v0).normalize())
-                };
-                Prim {
-                    tri: t,
-                    normal,
-                    kind,
-                    flat,
-                }
-            })
-            .collect();
         SceneGeometry {
-            bvh,
-            prims,
+            accel,
+            wall: WallPlane::new(w.center, w.axis_u, w.axis_v),
             flat_to_local,
             hidden,
             hidden_area: AreaDistribution::spatial(&areas, &centroids),
@@ -230,37 +214,47 @@ impl SceneGeometry {
         self
     }
 
-    /// Closest surface hit by the ray `origin + t * dir` (`dir` unit), `t > eps`.
-    pub fn intersect(&self, origin: Vec3, dir: Vec3) -> Option<Hit> {
-        let ray = Ray::new(origin.into(), dir.into(), self.eps, f32::INFINITY);
-        let mut hit = RayHit::none();
-        let prims = &self.prims;
-        if prims.len() <= BRUTE_FORCE_PRIMS {
-            for (i, p) in prims.iter().enumerate() {
-                let t = p.tri.intersect(&ray);
-                if t < hit.t {
-                    hit.t = t;
-                    hit.primitive_id = i as u32;
-                }
+    /// Closest hidden triangle hit by the ray within `[tmin, tmax]`: `(t, flat index)`.
+    fn hidden_hit(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<(f32, u32)> {
+        match &self.accel {
+            HiddenAccel::Packets(p) => packet::closest(p, o, d, tmin, tmax),
+            HiddenAccel::Bvh { bvh, tris, flat } => {
+                let ray = Ray::new(o.into(), d.into(), tmin, tmax);
+                let mut hit = RayHit::none();
+                bvh.ray_traverse(ray, &mut hit, |r, id| tris[id].intersect(r))
+                    .then(|| (hit.t, flat[hit.primitive_id as usize]))
             }
-            if !hit.t.is_finite() {
-                return None;
-            }
-        } else if !self
-            .bvh
-            .ray_traverse(ray, &mut hit, |r, id| prims[id].tri.intersect(r))
-        {
-            return None;
         }
-        let prim = &prims[hit.primitive_id as usize];
-        let p = origin + hit.t * dir;
+    }
+
+    /// Closest surface hit by the ray `origin + t * dir` (`dir` unit), `t > eps`. A wall
+    /// hit has barycentrics `[0, 0]` (the wall is not differentiated).
+    pub fn intersect(&self, origin: Vec3, dir: Vec3) -> Option<Hit> {
+        let hidden = self.hidden_hit(origin, dir, self.eps, f32::INFINITY);
+        let t_max = hidden.map_or(f32::INFINITY, |(t, _)| t);
+        if let Some(t) = self.wall.intersect(origin, dir, self.eps, t_max) {
+            if hidden.is_none_or(|(th, _)| t < th) {
+                return Some(Hit {
+                    t,
+                    p: origin + t * dir,
+                    n: self.wall_normal,
+                    kind: SurfaceKind::Wall,
+                    flat: u32::MAX,
+                    bary: [0.0; 2],
+                });
+            }
+        }
+        let (t, flat) = hidden?;
+        let tri = &self.hidden[flat as usize];
+        let (object, local) = self.flat_to_local[flat as usize];
+        let p = origin + t * dir;
         Some(Hit {
-            t: hit.t,
+            t,
             p,
-            n: prim.normal,
-            kind: prim.kind,
-            flat: prim.flat,
-            bary: barycentric(&prim.tri, p),
+            n: tri.n,
+            kind: SurfaceKind::Hidden { object, tri: local },
+            flat,
+            bary: barycentric(&tri.v, p),
         })
     }
 
@@ -272,14 +266,17 @@ impl SceneGeometry {
             return false;
         }
         let dir = d / dist;
-        let ray = Ray::new(a.into(), dir.into(), self.eps, dist - self.eps);
-        let prims = &self.prims;
-        if prims.len() <= BRUTE_FORCE_PRIMS {
-            return prims.iter().any(|p| p.tri.intersect(&ray) < f32::INFINITY);
+        let (tmin, tmax) = (self.eps, dist - self.eps);
+        if self.wall.blocks(a, b, dir, tmin, tmax) {
+            return true;
         }
-        !self
-            .bvh
-            .ray_traverse_miss(ray, |r, id| prims[id].tri.intersect(r))
+        match &self.accel {
+            HiddenAccel::Packets(p) => packet::any_hit(p, a, dir, tmin, tmax),
+            HiddenAccel::Bvh { bvh, tris, .. } => {
+                let ray = Ray::new(a.into(), dir.into(), tmin, tmax);
+                !bvh.ray_traverse_miss(ray, |r, id| tris[id].intersect(r))
+            }
+        }
     }
 }
 
@@ -292,10 +289,10 @@ fn tri(a: Vec3, b: Vec3, c: Vec3) -> Triangle {
 }
 
 /// Barycentrics (b1, b2) of a point on the triangle's plane.
-fn barycentric(t: &Triangle, p: Vec3) -> [f32; 2] {
-    let e1 = t.v1 - t.v0;
-    let e2 = t.v2 - t.v0;
-    let q = Vec3A::from(p) - t.v0;
+fn barycentric(v: &[Vec3; 3], p: Vec3) -> [f32; 2] {
+    let e1 = Vec3A::from(v[1] - v[0]);
+    let e2 = Vec3A::from(v[2] - v[0]);
+    let q = Vec3A::from(p - v[0]);
     let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
     let (q1, q2) = (q.dot(e1), q.dot(e2));
     let det = d11 * d22 - d12 * d12;

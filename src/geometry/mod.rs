@@ -1,11 +1,14 @@
-//! Geometry: hidden meshes and the relay wall in one BVH, the surfaces' shading data,
-//! and the sampling routines with their pdfs.
+//! Geometry: hidden meshes (a BVH, or SIMD packets when small) and the relay wall (an
+//! analytic parallelogram), the surfaces' shading data, and the sampling routines with
+//! their pdfs.
 
 pub mod accel;
 pub mod mesh;
 pub mod overlap;
+pub mod packet;
 pub mod sampling;
 pub mod shapes;
 pub mod silhouette;
+pub mod wall_plane;
 
 pub use accel::{HiddenTri, Hit, SceneGeometry, SurfaceKind};

@@ -165,7 +165,8 @@ pub fn evaluate<R: Real>(
 #[inline]
 pub fn draw(ctx: &MeasurementCtx, sampler: &mut Sampler) -> (TriangleSample, Vec3) {
     let ts = ctx.geom.hidden_area.sample(sampler.next_2d());
-    let x_l = sample_spot(ctx, sampler.next_2d());
+    let u_spot = sampler.reserve_2d();
+    let x_l = sample_spot(ctx, sampler, u_spot);
     (ts, x_l)
 }
 

@@ -28,7 +28,7 @@ pub use render::{render, Progress, RenderOptions, Renderer, Transient};
 
 use crate::film::Film;
 use crate::geometry::{SceneGeometry, SurfaceKind};
-use crate::rng::Sampler;
+use crate::rng::{Reserved, Sampler};
 use crate::scene::{Model, Scene};
 use glam::Vec3;
 use std::f32::consts::FRAC_1_PI;
@@ -216,12 +216,13 @@ pub fn run_samples<S: Sink>(
     }
 }
 
-/// A point of the laser spot: its centre, or a uniform point of the lit disk.
+/// A point of the laser spot: its centre, or a uniform point of the lit disk from the
+/// pair set aside as `u` (read only for a disk).
 #[inline]
-pub fn sample_spot(ctx: &MeasurementCtx, u: [f32; 2]) -> Vec3 {
+pub fn sample_spot(ctx: &MeasurementCtx, sampler: &Sampler, u: Reserved) -> Vec3 {
     let r = ctx.scene.laser.spot_radius;
     if r > 0.0 {
-        crate::geometry::sampling::uniform_disk(ctx.x_l, ctx.n_w, r, u)
+        crate::geometry::sampling::uniform_disk(ctx.x_l, ctx.n_w, r, sampler.get_2d(u))
     } else {
         ctx.x_l
     }

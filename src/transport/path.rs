@@ -312,15 +312,19 @@ pub fn sample<S: Sink>(
     let mut hidden_seen = false;
     let mut replay = S::ADJOINT.then(|| Replay::new(ctx));
 
+    // The shortest path y_j can close: j + 1 bounces by landing on a finite spot; a point
+    // spot is reached only by next-event estimation from y_j, j + 2 bounces. A vertex
+    // that can close no kept path is not traced (a three-bounce render stops at y_1).
+    let closing = if spot.is_point() { 2 } else { 1 };
     for j in 1u32.. {
-        // y_j can at best close a path of j + 1 bounces (landing on the spot).
-        if j + 1 > max_bounces {
+        if j + closing > max_bounces {
             break;
         }
         // One stratified pair picks the technique and, rescaled, drives it.
         let [u_pick, u_2] = sampler.next_2d();
-        let u_spot = sampler.next_2d();
-        let u_rr = sampler.next_1d();
+        // Set aside, read only where needed (a finite spot; Russian roulette).
+        let u_spot = sampler.reserve_2d();
+        let u_rr = sampler.reserve_2d();
         let techniques = technique_probabilities(tech, x.on_wall());
 
         // --- continuation: sample y_j by one of the two techniques -----------------
@@ -368,7 +372,7 @@ pub fn sample<S: Sink>(
         } else {
             hidden_seen = true;
             if tech.laser_sampling && keep(j + 2, hidden_seen) {
-                let x_l = sample_spot(ctx, u_spot);
+                let x_l = sample_spot(ctx, sampler, u_spot);
                 // The continuation from y (a hidden vertex) could land on x_l too: by
                 // BSDF sampling, or by area sampling of the wall.
                 let from_y = technique_probabilities(tech, false);
@@ -405,7 +409,7 @@ pub fn sample<S: Sink>(
         // --- Russian roulette before extending past rr_bounces -----------------------
         if j + 2 >= r.rr_bounces {
             let survive = survival(y.albedo);
-            if u_rr >= survive {
+            if sampler.get_1d(u_rr) >= survive {
                 break;
             }
             beta /= survive;

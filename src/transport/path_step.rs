@@ -332,7 +332,7 @@ pub(crate) fn walk(
             break;
         }
         let u = sampler.next_2d();
-        let u_rr = sampler.next_1d();
+        let u_rr = sampler.reserve_2d();
         let x = vertices[vertices.len() - 1];
         let Some(s) = step(ctx, &x.s, x.on_wall(), u) else {
             break;
@@ -343,7 +343,7 @@ pub(crate) fn walk(
         visit(vertices, beta, opl);
         if first_bounce + k >= rr_bounces {
             let survive = survival(s.y.albedo);
-            if u_rr >= survive {
+            if sampler.get_1d(u_rr) >= survive {
                 break;
             }
             beta /= survive;

@@ -215,6 +215,7 @@ impl SceneGeometry {
     }
 
     /// Closest hidden triangle hit by the ray within `[tmin, tmax]`: `(t, flat index)`.
+    #[inline]
     fn hidden_hit(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<(f32, u32)> {
         match &self.accel {
             HiddenAccel::Packets(p) => packet::closest(p, o, d, tmin, tmax),
@@ -229,6 +230,7 @@ impl SceneGeometry {
 
     /// Closest surface hit by the ray `origin + t * dir` (`dir` unit), `t > eps`. A wall
     /// hit has barycentrics `[0, 0]` (the wall is not differentiated).
+    #[inline]
     pub fn intersect(&self, origin: Vec3, dir: Vec3) -> Option<Hit> {
         let hidden = self.hidden_hit(origin, dir, self.eps, f32::INFINITY);
         let t_max = hidden.map_or(f32::INFINITY, |(t, _)| t);
@@ -259,6 +261,7 @@ impl SceneGeometry {
     }
 
     /// True if the open segment between surface points `a` and `b` is blocked.
+    #[inline]
     pub fn occluded(&self, a: Vec3, b: Vec3) -> bool {
         let d = b - a;
         let dist = d.length();

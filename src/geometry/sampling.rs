@@ -106,6 +106,7 @@ impl AreaDistribution {
     /// is then rescaled to [0, 1) within the triangle's share of the CDF, so the pair
     /// `(u[0]', u[1])` that places the point on the triangle keeps the stratification of
     /// `u` over the whole surface.
+    #[inline]
     pub fn sample(&self, u: [f32; 2]) -> TriangleSample {
         let i = self
             .cdf

@@ -14,10 +14,10 @@
 //! Supports: all capture types, one- and two-sided surfaces, per-vertex albedo.
 //! Does not: interreflections (see `path`), or paths through the wall.
 
-use super::{sample_spot, Contribution, HiddenGrad, MeasurementCtx, PathVertex, Sink};
+use super::{sample_spot, Contribution, HiddenGrad, MeasurementCtx, Sink};
 use crate::adjoint::dual::{self, Dual, Float, Real, V3};
 use crate::geometry::sampling::TriangleSample;
-use crate::geometry::{HiddenTri, SurfaceKind};
+use crate::geometry::HiddenTri;
 use crate::rng::Sampler;
 use glam::Vec3;
 use std::f32::consts::FRAC_1_PI;
@@ -186,24 +186,10 @@ pub fn sample<S: Sink>(ctx: &MeasurementCtx, sampler: &mut Sampler, sink: &mut S
     if weight <= 0.0 || geom.occluded(x, x_l) || geom.occluded(x, ctx.x_s) {
         return;
     }
-    let vertices = [
-        ctx.wall_vertex(ctx.x_s),
-        PathVertex {
-            p: x,
-            kind: SurfaceKind::Hidden {
-                object: geom.flat_to_local[ts.tri as usize].0,
-                tri: geom.flat_to_local[ts.tri as usize].1,
-            },
-            flat: ts.tri,
-            bary: ts.bary,
-        },
-        ctx.wall_vertex(x_l),
-    ];
     let c = Contribution {
         opl,
         weight,
         bounces: 3,
-        vertices: &vertices,
     };
     if S::ADJOINT {
         let vars = TriParams::variables(tri);

@@ -27,7 +27,7 @@ pub mod tri3_physics;
 pub use render::{render, Progress, RenderOptions, Renderer, Transient};
 
 use crate::film::Film;
-use crate::geometry::{SceneGeometry, SurfaceKind};
+use crate::geometry::SceneGeometry;
 use crate::rng::{Reserved, Sampler};
 use crate::scene::{Model, Scene};
 use glam::Vec3;
@@ -36,19 +36,9 @@ use std::f32::consts::FRAC_1_PI;
 /// Samples per block of work (the unit of parallelism and of progress).
 pub const BLOCK_SPP: u32 = 1024;
 
-/// A vertex a contribution depends on: where it is and what surface it sits on.
-#[derive(Clone, Copy, Debug)]
-pub struct PathVertex {
-    pub p: Vec3,
-    pub kind: SurfaceKind,
-    /// Flat hidden-triangle index (`u32::MAX` on the wall).
-    pub flat: u32,
-    pub bary: [f32; 2],
-}
-
 /// One path's contribution to a measurement: radiance `weight` arriving at OPL `opl`.
 #[derive(Clone, Copy, Debug)]
-pub struct Contribution<'a> {
+pub struct Contribution {
     /// Optical path length (m), legs to the laser and detector included if requested.
     pub opl: f32,
     /// Monte Carlo weight (radiance, already divided by the sampling pdf).
@@ -56,8 +46,6 @@ pub struct Contribution<'a> {
     /// Scattering events from the laser spot to the sensor point inclusive (3 = one
     /// hidden bounce).
     pub bounces: u32,
-    /// Vertices from the sensor point `x_s` to the laser spot `x_l`.
-    pub vertices: &'a [PathVertex],
 }
 
 /// Derivatives of a contribution's weight and OPL with respect to the local parameters
@@ -182,15 +170,6 @@ impl<'a> MeasurementCtx<'a> {
             dual::length(dual::sub(dual::constant(self.scene.laser.origin), p))
         } else {
             R::c(0.0)
-        }
-    }
-
-    pub fn wall_vertex(&self, p: Vec3) -> PathVertex {
-        PathVertex {
-            p,
-            kind: SurfaceKind::Wall,
-            flat: u32::MAX,
-            bary: [0.0; 2],
         }
     }
 }

@@ -58,7 +58,7 @@ use super::path_step::{
     technique_probabilities, Step, Surf, WalkVertex,
 };
 pub use super::path_step::{BSDF_SHARE_AT_HIDDEN, BSDF_SHARE_AT_WALL};
-use super::{sample_spot, Contribution, HiddenGrad, MeasurementCtx, PathVertex, Sink};
+use super::{sample_spot, Contribution, HiddenGrad, MeasurementCtx, Sink};
 use crate::adjoint::dual::{self, Dual, Real, V3};
 use crate::geometry::sampling::cosine_dir;
 use crate::geometry::SurfaceKind;
@@ -72,11 +72,9 @@ pub const PATH_TRIANGLES: usize = 4;
 /// Dual numbers over [`PATH_TRIANGLES`] triangles' corners and albedos.
 pub type PathDual = Dual<f32, 48>;
 
-/// Reusable per-thread storage for a path's vertices (no allocation per sample).
+/// Per-thread counters of the adjoint pass (the forward pass keeps no per-path storage).
 #[derive(Default)]
 pub struct PathScratch {
-    /// `x_s, y_1, …, y_j` while tracing; the laser spot is pushed for each emission.
-    vertices: Vec<PathVertex>,
     /// Adjoint pass: contributions whose path met more than [`PATH_TRIANGLES`] hidden
     /// triangles (their further derivatives are lost), and all contributions.
     pub truncated: u64,
@@ -304,8 +302,6 @@ pub fn sample<S: Sink>(
     let spot = Spot::new(ctx);
     let n_w = ctx.n_w;
 
-    scratch.vertices.clear();
-    scratch.vertices.push(ctx.wall_vertex(ctx.x_s));
     let mut x = WalkVertex::wall(ctx, ctx.x_s);
     let mut beta = 1.0f32; // throughput up to x, without f(x)
     let mut opl = ctx.opl_sensor_leg; // OPL from the detector (or x_s) to x
@@ -334,12 +330,6 @@ pub fn sample<S: Sink>(
         beta *= st.factor;
         opl += st.dist;
         let y = st.y;
-        let y_vertex = PathVertex {
-            p: y.p(),
-            kind: st.kind,
-            flat: y.flat,
-            bary: y.bary,
-        };
         if let Some(rp) = replay.as_mut() {
             rp.step(ctx, &st, techniques);
         }
@@ -361,7 +351,6 @@ pub fn sample<S: Sink>(
                     emit(
                         scratch,
                         sink,
-                        y_vertex,
                         total_opl,
                         spot.emission(beta, st.q),
                         j + 1,
@@ -390,17 +379,14 @@ pub fn sample<S: Sink>(
                             let o = rp.opl + r_d + PathDual::c(ctx.opl_laser_leg(x_l) as f64);
                             Some((rp.grads(&w, &o), rp.used, rp.truncated))
                         });
-                        scratch.vertices.push(y_vertex);
                         emit(
                             scratch,
                             sink,
-                            ctx.wall_vertex(x_l),
                             total_opl,
                             weight,
                             j + 2,
                             grad.as_ref().map(|(g, n, t)| (&g[..*n], *t)),
                         );
-                        scratch.vertices.pop();
                     }
                 }
             }
@@ -423,29 +409,25 @@ pub fn sample<S: Sink>(
                 rp.beta = rp.beta / survival(albedo);
             }
         }
-        scratch.vertices.push(y_vertex);
         x = y;
     }
 }
 
-/// Emits a contribution whose last vertex (the laser spot) is `spot`; in the adjoint
-/// pass with its derivatives (`None` for paths whose derivatives are not followed).
+/// Emits a contribution; in the adjoint pass with its derivatives (`None` for paths
+/// whose derivatives are not followed).
 #[inline]
 fn emit<S: Sink>(
     scratch: &mut PathScratch,
     sink: &mut S,
-    spot: PathVertex,
     opl: f32,
     weight: f32,
     bounces: u32,
     grads: Option<(&[HiddenGrad], bool)>,
 ) {
-    scratch.vertices.push(spot);
     let c = Contribution {
         opl,
         weight,
         bounces,
-        vertices: &scratch.vertices,
     };
     if S::ADJOINT {
         scratch.emitted += 1;
@@ -456,5 +438,4 @@ fn emit<S: Sink>(
     } else {
         sink.add(&c);
     }
-    scratch.vertices.pop();
 }

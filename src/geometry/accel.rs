@@ -66,6 +66,8 @@ pub struct HiddenTri {
     pub v: [Vec3; 3],
     /// Unit geometric normal, `(v1 - v0) × (v2 - v0)` normalised.
     pub n: Vec3,
+    /// Area (m²), `|(v1 - v0) × (v2 - v0)| / 2`.
+    pub area: f32,
     /// Albedo at the three vertices (the object's albedo three times if it has no
     /// per-vertex albedo).
     pub albedo: [f32; 3],
@@ -124,6 +126,7 @@ impl SceneGeometry {
                 hidden.push(HiddenTri {
                     v: [a, b, c],
                     n: (b - a).cross(c - a).normalize(),
+                    area: 0.5 * (b - a).cross(c - a).length(),
                     albedo: match &o.mesh.vertex_albedo {
                         Some(va) => idx.map(|i| va[i as usize]),
                         None => [o.albedo; 3],
@@ -184,8 +187,7 @@ impl SceneGeometry {
 
     /// Area of hidden triangle `flat` (m²).
     pub fn hidden_area_of(&self, flat: u32) -> f32 {
-        let [a, b, c] = self.hidden[flat as usize].v;
-        0.5 * (b - a).cross(c - a).length()
+        self.hidden[flat as usize].area
     }
 
     /// Which of the two relay-wall triangles ([`SceneGeometry::wall_tris`]) holds the wall

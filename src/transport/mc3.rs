@@ -128,11 +128,24 @@ pub fn evaluate<R: Real>(
     prob: f32,
     x_l: Vec3,
 ) -> Option<(R, R)> {
+    evaluate_on(ctx, t, t.normal_area(), bary, prob, x_l)
+}
+
+/// [`evaluate`] with the triangle's unit normal and area given (the primal pass reads
+/// them from [`HiddenTri`]: the same numbers, computed once per triangle).
+#[inline]
+fn evaluate_on<R: Real>(
+    ctx: &MeasurementCtx,
+    t: &TriParams<R>,
+    (n, area): (V3<R>, R),
+    bary: [f32; 2],
+    prob: f32,
+    x_l: Vec3,
+) -> Option<(R, R)> {
     let x = t.point(bary);
     let d_l = dual::sub(dual::constant(x_l), x);
     let d_s = dual::sub(dual::constant(ctx.x_s), x);
     let (r_l, r_s) = (dual::length(d_l), dual::length(d_s));
-    let (n, area) = t.normal_area();
     // r cos θ at x toward each wall point, and at each wall point toward x.
     let (c_l, c_s) = (dual::dot(n, d_l), dual::dot(n, d_s));
     let facing = if t.two_sided {
@@ -178,8 +191,9 @@ pub fn sample<S: Sink>(ctx: &MeasurementCtx, sampler: &mut Sampler, sink: &mut S
     let geom = ctx.geom;
     let (ts, x_l) = draw(ctx, sampler);
     let tri = &geom.hidden[ts.tri as usize];
-    let Some((weight, opl)) = evaluate(ctx, &TriParams::constant(tri), ts.bary, ts.prob, x_l)
-    else {
+    let n_area = (tri.n.to_array(), tri.area);
+    let constant = TriParams::constant(tri);
+    let Some((weight, opl)) = evaluate_on(ctx, &constant, n_area, ts.bary, ts.prob, x_l) else {
         return;
     };
     let x = tri.point(ts.bary);

@@ -49,8 +49,8 @@ impl WallPlane {
         (t >= tmin && t <= tmax && self.contains(o + t * d)).then_some(t)
     }
 
-    /// Whether the wall blocks the segment `a → b` (unit direction `d`, length `len`)
-    /// within `[tmin, tmax]`: only if `a` and `b` lie strictly on opposite sides.
+    /// Whether the wall blocks the segment `a → b` (unit direction `d`) within
+    /// `[tmin, tmax]`: only if `a` and `b` lie strictly on opposite sides.
     #[inline]
     pub fn blocks(&self, a: Vec3, b: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
         let (sa, sb) = (

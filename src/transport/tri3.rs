@@ -443,9 +443,13 @@ pub fn render_measurement(
     out: &mut [f32],
 ) {
     mesh.parent_visibility(visibility, &mut scratch.visible);
-    let gaussian = matches!(film.kernel, KernelSpec::Gaussian { .. });
-    // The box histogram spans bins `first .. first + bins` of the film.
-    let (frame, first, bins) = mesh.frame(ctx, film);
+    // A Gaussian kernel far wider than the bins is applied to the sum of the pulses,
+    // box-binned into its cells, rather than to each pulse ([`Film::cells`]).
+    let cells = film.cells();
+    let binned = cells.as_ref().unwrap_or(film);
+    let gaussian = matches!(binned.kernel, KernelSpec::Gaussian { .. });
+    // The box histogram spans bins `first .. first + bins` of `binned`.
+    let (frame, first, bins) = mesh.frame(ctx, binned);
     if gaussian {
         scratch.hist64.clear();
         scratch.hist64.resize(bins, 0.0);
@@ -476,22 +480,31 @@ pub fn render_measurement(
                 let opl = pulses
                     .lanes
                     .t()
-                    .map(|t| film.start + (base as f64 + t[j] as f64) * film.width);
+                    .map(|t| binned.start + (base as f64 + t[j] as f64) * binned.width);
                 let w = pulses.w.map(|w| w[j] as f64);
-                film.splat_triangle(opl, w, pulses.area[j] as f64, &mut scratch.hist64);
+                binned.splat_triangle(opl, w, pulses.area[j] as f64, &mut scratch.hist64);
             }
         } else {
             splat_lanes(&pulses.lanes, base, bins, &mut scratch.hist32);
         }
     }
     let scale = ctx.three_bounce_constant();
+    let lanes_sum = |h: &LaneRow| h.iter().sum::<f32>();
     if gaussian {
         for (o, h) in out.iter_mut().zip(&scratch.hist64) {
             *o += (*h * scale as f64) as f32;
         }
+    } else if let Some(cells) = &cells {
+        scratch.hist64.clear();
+        scratch.hist64.resize(film.bins, 0.0);
+        let mass = scratch.hist32[..bins].iter().map(|h| lanes_sum(h) as f64);
+        film.blur_cells(cells, first, mass, scale as f64, &mut scratch.hist64);
+        for (o, h) in out.iter_mut().zip(&scratch.hist64) {
+            *o += *h as f32;
+        }
     } else {
         for (o, h) in out[first..first + bins].iter_mut().zip(&scratch.hist32) {
-            *o += h.iter().sum::<f32>() * scale;
+            *o += lanes_sum(h) * scale;
         }
     }
 }

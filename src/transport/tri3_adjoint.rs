@@ -73,6 +73,17 @@ fn gradient_with(
     adjoint: &[f32],
     progress: Option<&Progress>,
 ) -> Option<Vec<[f64; TRI_PARAMS]>> {
+    // A Gaussian far wider than the bins: the render bins the pulses into its cells, so
+    // the pulses' adjoint is the cells' ([`Film::cells`]).
+    let cells = film.cells();
+    let cell_adjoint;
+    let (film, adjoint) = match &cells {
+        Some(c) => {
+            cell_adjoint = cells_adjoint(mesh, ctxs, film, c, adjoint);
+            (c, &cell_adjoint[..])
+        }
+        None => (film, adjoint),
+    };
     let tasks: Vec<&[TriBlock]> = mesh.blocks.chunks(BLOCKS_PER_TASK).collect();
     let sums: Vec<Vec<BlockGrad>> = tasks
         .par_iter()
@@ -97,6 +108,27 @@ fn gradient_with(
         }
     }
     Some(out)
+}
+
+/// `∂L/∂` of every cell of `cells` the mesh reaches, per measurement (`cells.bins` each),
+/// from the film's adjoint: the transpose of the render's blur.
+fn cells_adjoint(
+    mesh: &Tri3Mesh,
+    ctxs: &[MeasurementCtx],
+    film: &Film,
+    cells: &Film,
+    adjoint: &[f32],
+) -> Vec<f32> {
+    let mut out = vec![0.0f32; ctxs.len() * cells.bins];
+    out.par_chunks_mut(cells.bins)
+        .zip(ctxs.par_iter())
+        .enumerate()
+        .for_each(|(m, (o, ctx))| {
+            let (_, first, len) = mesh.frame(ctx, cells);
+            let adj = &adjoint[m * film.bins..(m + 1) * film.bins];
+            film.cells_adjoint(cells, first, adj, &mut o[first..first + len]);
+        });
+    out
 }
 
 /// `centroid` visibility of every original triangle from every measurement, filled on

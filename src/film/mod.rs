@@ -29,7 +29,6 @@ pub use pulse_reverse::Arith;
 
 pub use box_pulse::{splat_lanes, BoxPulse, LaneRow, PulseLanes, LANES, SPLAT_PAD};
 pub use box_reverse::{reverse_lanes, LaneGrad};
-pub use cells::CELLS_PER_SIGMA;
 
 /// Half-width of the evaluated Gaussian support, in σ.
 pub const GAUSS_CUTOFF: f64 = 6.5;

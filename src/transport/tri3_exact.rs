@@ -160,15 +160,26 @@ pub fn render_measurement(
     let mut parents = Vec::new();
     mesh.parent_visibility(visibility, &mut parents);
     let scale = ctx.three_bounce_constant() as f64;
+    // A Gaussian far wider than the bins goes through its cells, as in the render
+    // ([`Film::cells`]): the reference is of the model as rendered.
+    let cells = film.cells();
+    let mut cell_mass = vec![0.0; cells.as_ref().map_or(0, |c| c.bins)];
+    let (binned, out) = match &cells {
+        Some(c) => (c, &mut cell_mass[..]),
+        None => (film, &mut hist[..]),
+    };
     for k in 0..mesh.len() {
         if mesh.visible(k, ctx, visibility, &parents) {
             let parent = Parent::new(TriParams::constant64(
                 &ctx.geom.hidden[mesh.parent[k] as usize],
             ));
-            pair_bins(mesh, k, &parent, ctx, film, |b, v: f64| {
-                hist[b] += scale * v
+            pair_bins(mesh, k, &parent, ctx, binned, |b, v: f64| {
+                out[b] += scale * v
             });
         }
+    }
+    if let Some(c) = &cells {
+        film.blur_cells(c, 0, cell_mass, 1.0, hist);
     }
 }
 
@@ -226,10 +237,20 @@ pub fn gradient_f64(
         .map(|t| Parent::new(TriParams::<TriDual64>::variables(t)))
         .collect();
     let mut out = vec![[0.0; TRI_PARAMS]; parents.len()];
+    // Through the cells of a wide Gaussian, as the render ([`render_measurement`]).
+    let cells = film.cells();
+    let mut cell_adj = vec![0.0f32; cells.as_ref().map_or(0, |c| c.bins)];
     for (m, ctx) in ctxs.iter().enumerate() {
         if ctx.legs_visible {
             let adj = &adjoint[m * film.bins..(m + 1) * film.bins];
-            adjoint_measurement(mesh, &parents, ctx, film, visibility, adj, &mut out);
+            let (binned, adj) = match &cells {
+                Some(c) => {
+                    film.cells_adjoint(c, 0, adj, &mut cell_adj);
+                    (c, &cell_adj[..])
+                }
+                None => (film, adj),
+            };
+            adjoint_measurement(mesh, &parents, ctx, binned, visibility, adj, &mut out);
         }
     }
     out

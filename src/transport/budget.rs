@@ -11,6 +11,8 @@
 //!   measurements than threads, so a thread never holds two measurements' sets);
 //! - `tri3`: one histogram of eight `f32` lanes per thread over the bins the hidden
 //!   geometry can reach (at most `T`), `32` bytes a bin, `8 T` more with a Gaussian kernel;
+//!   under a Gaussian of `σ ≥ 32` bins the histogram is over its `C` cells instead
+//!   ([`Film::cells`], `C ≤ T + 420`), and a gradient holds their adjoint, `4 M C`;
 //! - gradients: the forward render, the target and the adjoint histogram (`4 M T` each),
 //!   per chunk of measurements a `f64` accumulator of 12 values per triangle, and for
 //!   `tri3` its per-thread histograms (the Monte Carlo adjoint keeps none).
@@ -22,6 +24,7 @@ use super::gate::Pass;
 use super::mc3::TRI_PARAMS;
 use super::RenderOptions;
 use crate::error::{Error, Result};
+use crate::film::Film;
 use crate::scene::{CaptureType, KernelSpec, Model, Scene};
 
 /// Sample blocks whose histograms are summed before folding into the measurement's.
@@ -56,10 +59,20 @@ pub fn footprint(scene: &Scene, opts: &RenderOptions, pass: Pass, threads: usize
     let t = u64::from(scene.film.temporal_bins);
     let n = threads.max(1) as u64;
     let output = m.saturating_mul(t).saturating_mul(4);
+    // `tri3` under a Gaussian of at least 32 bins works on its cells ([`Film::cells`]).
+    let cells = match opts.model {
+        Model::Tri3 => Film::new(&scene.film).cells().map(|c| c.bins as u64),
+        _ => None,
+    };
     let per_thread = match opts.model {
         Model::Tri3 => {
             let gaussian = matches!(scene.film.kernel, KernelSpec::Gaussian { .. });
-            let reach = t.min(super::tri3::WINDOW_MIN_BINS.max(reach_bins(scene)));
+            // A wide Gaussian: the lanes' histogram spans at most the cells, and the
+            // `f64` blur the film.
+            let reach = match cells {
+                Some(c) => c,
+                None => t.min(super::tri3::WINDOW_MIN_BINS.max(reach_bins(scene))),
+            };
             reach.saturating_mul(32) + if gaussian { t.saturating_mul(8) } else { 0 }
         }
         // The Monte Carlo adjoint reads the adjoint histogram and keeps no per-thread one.
@@ -71,6 +84,10 @@ pub fn footprint(scene: &Scene, opts: &RenderOptions, pass: Pass, threads: usize
     if pass == Pass::Gradient {
         let tris = scene.total_hidden_triangles() as u64;
         arrays = output.saturating_mul(3);
+        // The cells' adjoint of every measurement (`f32`), computed before the pulses'.
+        if let Some(c) = cells {
+            arrays = arrays.saturating_add(m.saturating_mul(c).saturating_mul(4));
+        }
         working =
             working.saturating_add(GRADIENT_CHUNKS.saturating_mul(tris) * (TRI_PARAMS as u64 * 8));
     }

@@ -9,10 +9,12 @@
 //! - [`accuracy`]: error against wall-clock time for every way of computing a transient.
 //! - [`grad_accuracy`]: gradient error against wall-clock time (adjoints, replay, FD).
 //! - [`scaling`]: time and memory against scan, bins, triangles and spp.
+//! - [`rays`]: the path tracer's rays/s against a replay of its rays alone (obvhs's rate).
 
 pub mod ablation;
 pub mod accuracy;
 pub mod grad_accuracy;
+pub mod rays;
 pub mod scaling;
 
 use crate::error::Result;

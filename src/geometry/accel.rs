@@ -188,6 +188,16 @@ impl SceneGeometry {
         }
     }
 
+    /// Every triangle a ray can hit, hidden ones then the wall's two, as obvhs triangles
+    /// (the ray-throughput benchmark's bare BVH).
+    pub fn all_triangles(&self) -> Vec<Triangle> {
+        let hidden = self.hidden.iter().map(|t| t.v);
+        hidden
+            .chain(self.wall_tris)
+            .map(|[a, b, c]| tri(a, b, c))
+            .collect()
+    }
+
     /// Area of hidden triangle `flat` (m²).
     pub fn hidden_area_of(&self, flat: u32) -> f32 {
         self.hidden[flat as usize].area
@@ -237,6 +247,7 @@ impl SceneGeometry {
     /// hit has barycentrics `[0, 0]` (the wall is not differentiated).
     #[inline]
     pub fn intersect(&self, origin: Vec3, dir: Vec3) -> Option<Hit> {
+        super::ray_log::log(origin, dir, f32::INFINITY, false);
         let hidden = self.hidden_hit(origin, dir, self.eps, f32::INFINITY);
         let t_max = hidden.map_or(f32::INFINITY, |(t, _)| t);
         if let Some(t) = self.wall.intersect(origin, dir, self.eps, t_max) {
@@ -275,6 +286,7 @@ impl SceneGeometry {
         }
         let dir = d / dist;
         let (tmin, tmax) = (self.eps, dist - self.eps);
+        super::ray_log::log(a, dir, tmax, true);
         if self.wall.blocks(a, b, dir, tmin, tmax) {
             return true;
         }

@@ -6,6 +6,7 @@ pub mod accel;
 pub mod mesh;
 pub mod overlap;
 pub mod packet;
+pub mod ray_log;
 pub mod sampling;
 pub mod shapes;
 pub mod silhouette;

@@ -10,7 +10,7 @@ use umbra::scene::Model;
 #[derive(clap::Args)]
 pub struct BenchArgs {
     /// Which benchmark: tri3, grad, tri3-grad (tri3 gradient vs render), ablation, accuracy,
-    /// grad-accuracy, scaling.
+    /// grad-accuracy, scaling, rays (the path tracer's rays/s against obvhs's).
     pub which: String,
     /// Timed repetitions (median reported).
     #[arg(long, default_value_t = 5)]
@@ -51,6 +51,12 @@ pub struct BenchArgs {
     /// mitransient curves of python/bench/bench_accuracy_mitransient.py).
     #[arg(long)]
     pub extra_curves: Option<PathBuf>,
+    /// rays: the scene (TOML or Mitsuba XML; default: the built-in default scene) and its
+    /// defines, NAME=VALUE.
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
+    #[arg(short = 'D', long = "define")]
+    pub define: Vec<String>,
     /// accuracy / grad-accuracy: redraw the chart and table from the CSV in --out
     /// instead of measuring.
     #[arg(long)]
@@ -70,9 +76,10 @@ pub fn bench(args: BenchArgs) -> umbra::Result<()> {
             | "grad-accuracy"
             | "scaling"
             | "scaling-point"
+            | "rays"
     ) {
         return Err(umbra::Error::Invalid(format!(
-            "bench: unknown benchmark '{}' (available: tri3, grad, tri3-grad, ablation, accuracy, grad-accuracy, scaling)",
+            "bench: unknown benchmark '{}' (available: tri3, grad, tri3-grad, ablation, accuracy, grad-accuracy, scaling, rays)",
             args.which
         )));
     }
@@ -110,6 +117,9 @@ pub fn bench(args: BenchArgs) -> umbra::Result<()> {
     }
     if args.which == "scaling" {
         return bench_scaling(&args);
+    }
+    if args.which == "rays" {
+        return pool.install(|| bench_rays(&args));
     }
     pool.install(|| {
         let threads = rayon::current_num_threads();
@@ -160,6 +170,58 @@ pub fn bench(args: BenchArgs) -> umbra::Result<()> {
         }
         Ok(())
     })
+}
+
+/// `umbra bench rays`: the scene's render against a replay of its rays (bench::rays).
+fn bench_rays(args: &BenchArgs) -> umbra::Result<()> {
+    let scene = crate::load_scene(args.scene.as_deref(), &args.define)?;
+    let mut opts = umbra::transport::RenderOptions::from_scene(&scene);
+    if let Some(spp) = args.spp {
+        opts.spp = spp;
+    }
+    let f = umbra::bench::rays::rays(&scene, &opts, args.reps)?;
+    let threads = rayon::current_num_threads();
+    println!(
+        "## Ray throughput: {:?}, {} measurements x {} spp, {} hidden triangles, {threads} threads\n",
+        opts.model,
+        scene.num_measurements(),
+        opts.spp,
+        scene.total_hidden_triangles()
+    );
+    println!(
+        "{:.3} rays per sample ({} closest-hit, {} shadow); medians of {} runs.\n",
+        f.rays_per_sample(),
+        f.closest_rays,
+        f.shadow_rays,
+        args.reps.max(1)
+    );
+    println!("| what | seconds | M rays/s | M samples/s |");
+    println!("|---|---|---|---|");
+    let m = 1e-6;
+    println!(
+        "| render (effective: samples/s x rays/sample) | {:.4} | {:.2} | {:.2} |",
+        f.render_seconds,
+        m * f.effective_rays_per_second(),
+        m * f.samples_per_second()
+    );
+    println!(
+        "| its rays alone, Umbra's ray functions | {:.4} | {:.2} | |",
+        f.umbra_replay_seconds,
+        m * f.umbra_rays_per_second()
+    );
+    println!(
+        "| its rays alone, bare obvhs CWBVH (wall as 2 triangles) | {:.4} | {:.2} | |",
+        f.obvhs_replay_seconds,
+        m * f.obvhs_rays_per_second()
+    );
+    println!(
+        "\nRay queries at Umbra's rate would be {:.0} % of the render's time ({:.0} % at obvhs's). Hits: {} (Umbra), {} (obvhs).",
+        100.0 * f.umbra_replay_seconds / f.render_seconds,
+        100.0 * f.obvhs_replay_seconds / f.render_seconds,
+        f.umbra_hits,
+        f.obvhs_hits
+    );
+    Ok(())
 }
 
 /// `umbra bench ablation`: the seed paper's sampling-technique comparison (bench::ablation).

@@ -37,11 +37,19 @@ pub struct RayFigures {
     pub umbra_replay_seconds: f64,
     /// Median seconds to replay them through a bare obvhs CWBVH.
     pub obvhs_replay_seconds: f64,
-    /// Rays that hit (closest) or were blocked (shadow), in each replay: the two agree
-    /// but for rays grazing the wall's edges, which Umbra intersects analytically.
+    /// Rays that hit (closest) or were blocked (shadow), in each replay. They differ where
+    /// a ray lies in a triangle's plane (a shadow ray between two points of a planar
+    /// object: `0/0` in both triangle tests, decided by rounding; such a ray carries zero
+    /// weight, its cosines being 0) and where the two tests round differently at edges.
     pub umbra_hits: u64,
     pub obvhs_hits: u64,
+    /// The same count by testing every triangle (obvhs's triangle test, no BVH): the
+    /// reference for the two above, on scenes of at most [`BRUTE_FORCE_TRIANGLES`].
+    pub brute_force_hits: Option<u64>,
 }
+
+/// Largest scene whose rays are also tested against every triangle.
+pub const BRUTE_FORCE_TRIANGLES: usize = 2048;
 
 impl RayFigures {
     pub fn rays(&self) -> u64 {
@@ -129,6 +137,12 @@ pub fn rays(scene: &Scene, opts: &RenderOptions, reps: usize) -> Result<RayFigur
         obvhs_hits = h;
         obvhs_s.push(d.as_secs_f64());
     }
+    let brute_force_hits = (tris.len() <= BRUTE_FORCE_TRIANGLES).then(|| {
+        chunks(&log, |r| {
+            let ray = Ray::new(r.origin.into(), r.dir.into(), geom.eps, r.t_max);
+            tris.iter().any(|t| t.intersect(&ray) < f32::INFINITY)
+        })
+    });
     Ok(RayFigures {
         samples: scene.num_measurements() as u64 * u64::from(opts.spp),
         closest_rays: log.len() as u64 - shadow,
@@ -138,6 +152,7 @@ pub fn rays(scene: &Scene, opts: &RenderOptions, reps: usize) -> Result<RayFigur
         obvhs_replay_seconds: median(obvhs_s),
         umbra_hits,
         obvhs_hits,
+        brute_force_hits,
     })
 }
 

@@ -215,11 +215,13 @@ fn bench_rays(args: &BenchArgs) -> umbra::Result<()> {
         m * f.obvhs_rays_per_second()
     );
     println!(
-        "\nRay queries at Umbra's rate would be {:.0} % of the render's time ({:.0} % at obvhs's). Hits: {} (Umbra), {} (obvhs).",
+        "\nRay queries at Umbra's rate would be {:.0} % of the render's time ({:.0} % at obvhs's). Hits: {} (Umbra), {} (obvhs), {} (every triangle tested).",
         100.0 * f.umbra_replay_seconds / f.render_seconds,
         100.0 * f.obvhs_replay_seconds / f.render_seconds,
         f.umbra_hits,
-        f.obvhs_hits
+        f.obvhs_hits,
+        f.brute_force_hits
+            .map_or("not counted".to_string(), |h| h.to_string())
     );
     Ok(())
 }

@@ -1,7 +1,5 @@
 //! `umbra bench rays`: the path tracer's ray throughput against the machine's.
 //!
-//! Needs the `ray-log` feature ([`ray_log`]: logging in every build slowed `path` by 15 %).
-//!
 //! 1. The scene is rendered as asked (median of `reps` timed renders): samples/s.
 //! 2. It is rendered once more on one thread inside [`ray_log::record`]: every closest-hit
 //!    and shadow ray the estimator cast, hence rays per sample.
@@ -86,11 +84,6 @@ fn timed<T>(f: impl FnOnce() -> T) -> (T, Duration) {
 
 /// Runs the three steps (module doc) on the current rayon pool.
 pub fn rays(scene: &Scene, opts: &RenderOptions, reps: usize) -> Result<RayFigures> {
-    if !ray_log::ENABLED {
-        return Err(crate::Error::Invalid(
-            "bench rays: this build does not log rays; build with `cargo build --release --features ray-log`".into(),
-        ));
-    }
     let geom = SceneGeometry::build(scene);
     let renderer = Renderer::new(scene, &geom, opts)?;
     let mut render_s = Vec::new();
@@ -102,13 +95,6 @@ pub fn rays(scene: &Scene, opts: &RenderOptions, reps: usize) -> Result<RayFigur
     let (r, log) = ray_log::record(|| renderer.render(None))?;
     r?;
     let shadow = log.iter().filter(|r| r.shadow).count() as u64;
-    let mut umbra_s = Vec::new();
-    let mut umbra_hits = 0;
-    for _ in 0..reps.max(1) {
-        let (h, d) = timed(|| replay_umbra(&geom, &log));
-        umbra_hits = h;
-        umbra_s.push(d.as_secs_f64());
-    }
     let tris = geom.all_triangles();
     let mut build = Duration::ZERO;
     let bvh = build_cwbvh_from_tris(&tris, BvhBuildParams::medium_build(), &mut build);
@@ -117,19 +103,23 @@ pub fn rays(scene: &Scene, opts: &RenderOptions, reps: usize) -> Result<RayFigur
         .iter()
         .map(|&i| tris[i as usize])
         .collect();
-    let (mut obvhs_s, mut obvhs_hits) = (Vec::new(), 0);
+    let bare = |r: &LoggedRay| {
+        let ray = Ray::new(r.origin.into(), r.dir.into(), geom.eps, r.t_max);
+        if r.shadow {
+            !bvh.ray_traverse_miss(ray, |r, id| tris[id].intersect(r))
+        } else {
+            let mut hit = RayHit::none();
+            bvh.ray_traverse(ray, &mut hit, |r, id| tris[id].intersect(r))
+        }
+    };
+    // The two replays alternate, so that neither gets the warmer machine.
+    let (mut umbra_s, mut obvhs_s) = (Vec::new(), Vec::new());
+    let (mut umbra_hits, mut obvhs_hits) = (0, 0);
     for _ in 0..reps.max(1) {
-        let (h, d) = timed(|| {
-            chunks(&log, |r| {
-                let ray = Ray::new(r.origin.into(), r.dir.into(), geom.eps, r.t_max);
-                if r.shadow {
-                    !bvh.ray_traverse_miss(ray, |r, id| tris[id].intersect(r))
-                } else {
-                    let mut hit = RayHit::none();
-                    bvh.ray_traverse(ray, &mut hit, |r, id| tris[id].intersect(r))
-                }
-            })
-        });
+        let (h, d) = timed(|| replay_umbra(&geom, &log));
+        umbra_hits = h;
+        umbra_s.push(d.as_secs_f64());
+        let (h, d) = timed(|| chunks(&log, bare));
         obvhs_hits = h;
         obvhs_s.push(d.as_secs_f64());
     }

@@ -4,12 +4,11 @@
 //! functions and through a bare obvhs BVH, to show how far the renderer's rays/s is from
 //! the machine's.
 //!
-//! Compiled in with the `ray-log` feature only (and in the library's unit tests): the
-//! first version, a relaxed atomic test per ray in every build, rendered `path` on T.xml
-//! at 4.1-4.7 against 5.3-5.5 M samples/s without it (3 alternated runs on a machine
-//! shared with a test run: a hint, not a measurement), so it is kept out of the render's
-//! build. Without the feature [`log`] is empty and [`record`] logs nothing. With it, only
-//! the one thread of a [`record`] pool logs, into its own buffer.
+//! Off, logging costs one thread-local test per ray: `path` on T.xml (mb, 4096 spp, 2
+//! threads) ran 7.1-7.7 M samples/s without the hook and 7.6-8.0 with it, alternated on a
+//! quiet machine, i.e. nothing measurable. (A first comparison, on a machine shared with a
+//! test run, had suggested 15 % and put the hook behind a cargo feature; it was noise.)
+//! On, only the one thread of a [`record`] pool logs, into its own buffer.
 
 use glam::Vec3;
 use std::cell::{Cell, RefCell};
@@ -25,10 +24,6 @@ pub struct LoggedRay {
     pub shadow: bool,
 }
 
-/// Whether this build can log rays: the `ray-log` feature, or the library's own unit
-/// tests (so that `cargo test` checks the log and the benchmark without the feature).
-pub const ENABLED: bool = cfg!(any(test, feature = "ray-log"));
-
 thread_local! {
     /// Set on the worker thread of a [`record`] pool only: rays other threads trace
     /// meanwhile (other tests, other renders) are not logged.
@@ -36,10 +31,10 @@ thread_local! {
     static LOG: RefCell<Vec<LoggedRay>> = const { RefCell::new(Vec::new()) };
 }
 
-/// Logs a ray if this thread is a [`record`] pool's (a no-op without `ray-log`).
+/// Logs a ray if this thread is a [`record`] pool's.
 #[inline(always)]
 pub(crate) fn log(origin: Vec3, dir: Vec3, t_max: f32, shadow: bool) {
-    if ENABLED && RECORDING.with(Cell::get) {
+    if RECORDING.with(Cell::get) {
         push(LoggedRay {
             origin,
             dir,

@@ -15,7 +15,7 @@
 use crate::error::Result;
 use crate::geometry::ray_log::{self, LoggedRay};
 use crate::geometry::SceneGeometry;
-use crate::scene::Scene;
+use crate::scene::{Model, Scene};
 use crate::transport::{RenderOptions, Renderer};
 use obvhs::cwbvh::builder::build_cwbvh_from_tris;
 use obvhs::ray::{Ray, RayHit};
@@ -45,6 +45,9 @@ pub struct RayFigures {
     /// reference for the two above, on scenes of at most [`BRUTE_FORCE_TRIANGLES`].
     pub brute_force_hits: Option<u64>,
 }
+
+/// Most samples whose rays are logged (a path casts up to ~8 rays of 28 bytes).
+pub const MAX_LOGGED_SAMPLES: u64 = 1 << 24;
 
 /// Largest scene whose rays are also tested against every triangle.
 pub const BRUTE_FORCE_TRIANGLES: usize = 2048;
@@ -84,6 +87,19 @@ fn timed<T>(f: impl FnOnce() -> T) -> (T, Duration) {
 
 /// Runs the three steps (module doc) on the current rayon pool.
 pub fn rays(scene: &Scene, opts: &RenderOptions, reps: usize) -> Result<RayFigures> {
+    if !matches!(opts.model, Model::Path | Model::Mc3) {
+        return Err(crate::Error::Invalid(format!(
+            "bench rays: model {:?} has no samples; use path or mc3 (render.model or -D)",
+            opts.model
+        )));
+    }
+    let samples = scene.num_measurements() as u64 * u64::from(opts.spp);
+    if samples > MAX_LOGGED_SAMPLES {
+        return Err(crate::Error::Invalid(format!(
+            "bench rays: {samples} samples would log ~{} GB of rays; lower spp or the scan to at most {MAX_LOGGED_SAMPLES} samples",
+            samples * 8 * std::mem::size_of::<LoggedRay>() as u64 / 1_000_000_000
+        )));
+    }
     let geom = SceneGeometry::build(scene);
     let renderer = Renderer::new(scene, &geom, opts)?;
     let mut render_s = Vec::new();
@@ -130,7 +146,7 @@ pub fn rays(scene: &Scene, opts: &RenderOptions, reps: usize) -> Result<RayFigur
         })
     });
     Ok(RayFigures {
-        samples: scene.num_measurements() as u64 * u64::from(opts.spp),
+        samples,
         closest_rays: log.len() as u64 - shadow,
         shadow_rays: shadow,
         render_seconds: median(render_s),

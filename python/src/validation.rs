@@ -99,7 +99,10 @@ pub fn mc3_samples<'py>(
             bary.extend(ts.bary);
             prob.push(ts.prob);
             x_l.extend(xl.to_array());
-            visible.push(!geom.occluded(x, xl) && !geom.occluded(x, ctx.x_s));
+            visible.push(
+                !geom.occluded_touching(x, xl, ts.tri)
+                    && !geom.occluded_touching(x, ctx.x_s, ts.tri),
+            );
         }
     }
     let sp = spp as usize;

@@ -6,6 +6,7 @@
 //! Rays that start or end on a surface are shortened by `eps` (a fraction of the scene
 //! size) at both ends, so a surface does not shadow itself.
 
+use super::blockers::{BlockerSets, Blockers};
 use super::packet::{self, TriPacket};
 use super::wall_plane::WallPlane;
 use crate::geometry::sampling::AreaDistribution;
@@ -96,6 +97,8 @@ impl HiddenTri {
 pub struct SceneGeometry {
     accel: HiddenAccel,
     wall: WallPlane,
+    /// Per hidden triangle and side, what a segment touching it can be blocked by.
+    blockers: BlockerSets,
     /// Hidden triangles by flat index: (object, local triangle).
     pub flat_to_local: Vec<(u32, u32)>,
     /// Hidden triangles by flat index.
@@ -157,7 +160,11 @@ impl SceneGeometry {
             areas_with_wall.push(0.5 * (b - a).cross(c - a).length());
             centroids_with_wall.push((a + b + c) / 3.0);
         }
-        let accel = if tris.len() <= PACKET_TRIANGLES {
+        let eps = 2e-6 * extent.max(1e-3) + 1e-6;
+        let normals: Vec<Vec3> = hidden.iter().map(|t| t.n).collect();
+        let as_packets = tris.len() <= PACKET_TRIANGLES;
+        let blockers = BlockerSets::build(&tris, &normals, 0.25 * eps, as_packets);
+        let accel = if as_packets {
             HiddenAccel::Packets(packet::pack(&tris))
         } else {
             let tris: Vec<Triangle> = tris.iter().map(|&[a, b, c]| tri(a, b, c)).collect();
@@ -178,12 +185,13 @@ impl SceneGeometry {
         SceneGeometry {
             accel,
             wall: WallPlane::new(w.center, w.axis_u, w.axis_v),
+            blockers,
             flat_to_local,
             hidden,
             hidden_area: AreaDistribution::spatial(&areas, &centroids),
             hidden_and_wall_area: AreaDistribution::spatial(&areas_with_wall, &centroids_with_wall),
             wall_tris,
-            eps: 2e-6 * extent.max(1e-3) + 1e-6,
+            eps,
             wall_normal,
         }
     }
@@ -279,6 +287,29 @@ impl SceneGeometry {
     /// True if the open segment between surface points `a` and `b` is blocked.
     #[inline]
     pub fn occluded(&self, a: Vec3, b: Vec3) -> bool {
+        self.occluded_by(a, b, &Blockers::All)
+    }
+
+    /// [`SceneGeometry::occluded`] for a segment one of whose ends lies on hidden
+    /// triangle `flat`: only the triangles that can block it from that triangle's side
+    /// are tested ([`super::blockers`]; none for a convex or planar object).
+    #[inline]
+    pub fn occluded_touching(&self, a: Vec3, b: Vec3, flat: u32) -> bool {
+        self.occluded_by(a, b, self.blockers.of_segment(flat, a, b))
+    }
+
+    /// How many hidden-triangle sides need no hidden-geometry shadow test (of `2 N`).
+    pub fn unblockable_sides(&self) -> usize {
+        self.blockers.empty_sides()
+    }
+
+    #[inline]
+    fn occluded_by(&self, a: Vec3, b: Vec3, blockers: &Blockers) -> bool {
+        // Nothing to trace: no hidden triangle can block, and the wall does not separate
+        // the ends (two dot products; the usual case for a planar or convex object).
+        if matches!(blockers, Blockers::Nothing) && !self.wall.separates(a, b) {
+            return false;
+        }
         let d = b - a;
         let dist = d.length();
         if dist <= 2.0 * self.eps {
@@ -290,9 +321,12 @@ impl SceneGeometry {
         if self.wall.blocks(a, b, dir, tmin, tmax) {
             return true;
         }
-        match &self.accel {
-            HiddenAccel::Packets(p) => packet::any_hit(p, a, dir, tmin, tmax),
-            HiddenAccel::Bvh { bvh, tris, .. } => {
+        match (blockers, &self.accel) {
+            (Blockers::Nothing, _) => false,
+            (Blockers::Packets(p), _) | (Blockers::All, HiddenAccel::Packets(p)) => {
+                packet::any_hit(p, a, dir, tmin, tmax)
+            }
+            (Blockers::All, HiddenAccel::Bvh { bvh, tris, .. }) => {
                 let ray = Ray::new(a.into(), dir.into(), tmin, tmax);
                 !bvh.ray_traverse_miss(ray, |r, id| tris[id].intersect(r))
             }

@@ -3,6 +3,7 @@
 //! their pdfs.
 
 pub mod accel;
+pub mod blockers;
 pub mod mesh;
 pub mod overlap;
 pub mod packet;

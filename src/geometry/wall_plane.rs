@@ -53,14 +53,18 @@ impl WallPlane {
     /// `[tmin, tmax]`: only if `a` and `b` lie strictly on opposite sides.
     #[inline]
     pub fn blocks(&self, a: Vec3, b: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
+        self.separates(a, b) && self.intersect(a, d, tmin, tmax).is_some()
+    }
+
+    /// Whether `a` and `b` lie strictly on opposite sides of the wall's plane (only then
+    /// can the wall block the segment between them).
+    #[inline]
+    pub fn separates(&self, a: Vec3, b: Vec3) -> bool {
         let (sa, sb) = (
             self.normal.dot(a - self.center),
             self.normal.dot(b - self.center),
         );
-        if (sa > 0.0) == (sb > 0.0) || sa == 0.0 || sb == 0.0 {
-            return false;
-        }
-        self.intersect(a, d, tmin, tmax).is_some()
+        (sa > 0.0) != (sb > 0.0) && sa != 0.0 && sb != 0.0
     }
 }
 

@@ -197,7 +197,8 @@ pub fn sample<S: Sink>(ctx: &MeasurementCtx, sampler: &mut Sampler, sink: &mut S
         return;
     };
     let x = tri.point(ts.bary);
-    if weight <= 0.0 || geom.occluded(x, x_l) || geom.occluded(x, ctx.x_s) {
+    let blocked = |b: Vec3| geom.occluded_touching(x, b, ts.tri);
+    if weight <= 0.0 || blocked(x_l) || blocked(ctx.x_s) {
         return;
     }
     let c = Contribution {

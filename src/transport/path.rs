@@ -373,7 +373,7 @@ pub fn sample<S: Sink>(
                 if let Some((weight, r_l)) = spot.nee(&y.s, beta, x_l, n_w, from_y, p_hg_l) {
                     let total_opl = opl + r_l + ctx.opl_laser_leg(x_l);
                     let in_film = total_opl >= ctx.opl_min && total_opl < ctx.opl_max;
-                    if in_film && weight > 0.0 && !geom.occluded(y.p(), x_l) {
+                    if in_film && weight > 0.0 && !geom.occluded_touching(y.p(), x_l, y.flat) {
                         let grad = replay.as_ref().and_then(|rp| {
                             let (w, r_d) = spot.nee(&rp.x, rp.beta, x_l, n_w, from_y, p_hg_l)?;
                             let o = rp.opl + r_d + PathDual::c(ctx.opl_laser_leg(x_l) as f64);

@@ -237,8 +237,18 @@ pub(crate) fn step(
             let y = (1.0 - b1 - b2) * a + b1 * b + b2 * c;
             (y, n_w, SurfaceKind::Wall, u32::MAX)
         };
+        // The cheap rejections below first: a backward or grazing sample (a point in the
+        // plane of a planar x) needs no shadow ray.
         let dir = (y - x_p).normalize();
-        if x_n.dot(dir) <= 0.0 || geom.occluded(x_p, y) {
+        if x_n.dot(dir) <= 0.0 || n.dot(dir).abs() <= 1e-7 {
+            return None;
+        }
+        let blocked = if flat == u32::MAX {
+            geom.occluded(x_p, y)
+        } else {
+            geom.occluded_touching(x_p, y, flat)
+        };
+        if blocked {
             return None;
         }
         (y, n, kind, flat, ts.bary, Some(ts.tri))

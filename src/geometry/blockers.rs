@@ -1,0 +1,117 @@
+//! Which hidden triangles can block a segment that touches hidden triangle `t` (DESIGN §3,
+//! visibility `V(a, b)`): shadow-ray culling, exact up to the self-intersection offset.
+//!
+//! A segment from a point `a` of `t`'s plane `P` to a point `b` strictly in front of `P`
+//! (`n_t · (b − a) > 0`) has every other point strictly in front of `P`. A triangle `u`
+//! whose corners all lie on or behind `P` therefore cannot meet it beyond `a`, and `t`
+//! itself meets it only at `a`. So the shadow ray need test only
+//!
+//! `B(t, +) = { u ≠ t : max_k n_t · (u_k − t_0) > τ }`,
+//!
+//! and `B(t, −)` likewise for `b` behind `P`. For a convex object every `B` is empty (a
+//! convex surface does not shadow itself); for a planar one (a letter, a plate) too. With
+//! `τ = eps / 4` (`eps` the scene's self-intersection offset), a triangle that rises at
+//! most `τ` above `P`, from rounding of its corners (a planar mesh rotated in `f32` is
+//! coplanar to ~1e-8 m), counts as coplanar: it could block only a ray that stays within
+//! `τ` of `P`, a ray at a grazing angle `sin θ ≤ (τ + δ)/s` at distance `s ≥ eps`, where
+//! `δ` is the rounding of `a`'s own position. The full test decides those rays by
+//! rounding too (`0/0` in the plane); their weight carries the factor `cos θ_a = sin θ`.
+//!
+//! The sets are computed exactly (all pairs) for scenes of up to [`EXACT_TRIANGLES`]
+//! hidden triangles, and kept as packets where the scene's hidden triangles are packets;
+//! a BVH scene uses the full BVH whenever its set is not empty.
+
+use super::packet::{self, TriPacket};
+use glam::Vec3;
+
+/// Scenes with more hidden triangles test every segment against everything (computing
+/// the sets costs `O(N²)`: at this size a few milliseconds).
+pub const EXACT_TRIANGLES: usize = 2048;
+
+/// What a segment touching a triangle, on one side of its plane, must be tested against.
+#[derive(Clone, Debug)]
+pub enum Blockers {
+    /// Nothing can block it (the hidden geometry is skipped; the wall is still tested).
+    Nothing,
+    /// These triangles only, as packets (scenes whose hidden triangles are packets).
+    Packets(Vec<TriPacket>),
+    /// Every hidden triangle (the scene's own acceleration structure).
+    All,
+}
+
+/// The sets `B(t, +)` and `B(t, −)` of every hidden triangle `t`, by flat index.
+#[derive(Clone, Debug)]
+pub struct BlockerSets {
+    sides: Vec<[Blockers; 2]>,
+    /// Unit normal and a corner of each triangle's plane (as [`super::HiddenTri`] has them).
+    planes: Vec<(Vec3, Vec3)>,
+    /// Heights above a plane below which a segment's far end counts as in the plane.
+    tau: f32,
+}
+
+impl BlockerSets {
+    /// The sets of `tris` (`[v0, v1, v2]`, unit normals `normals`), `tau` the coplanarity
+    /// tolerance (m); `as_packets` keeps non-empty sets as packets, else as [`Blockers::All`].
+    pub fn build(tris: &[[Vec3; 3]], normals: &[Vec3], tau: f32, as_packets: bool) -> Self {
+        let planes: Vec<(Vec3, Vec3)> = normals.iter().zip(tris).map(|(&n, t)| (n, t[0])).collect();
+        let all = || vec![[Blockers::All, Blockers::All]; tris.len()];
+        if tris.len() > EXACT_TRIANGLES {
+            return BlockerSets {
+                sides: all(),
+                planes,
+                tau,
+            };
+        }
+        let sides = (0..tris.len())
+            .map(|t| {
+                // Heights in f64 from the f32 corners, so the sets themselves do not round.
+                let (n, o) = (planes[t].0.as_dvec3(), tris[t][0].as_dvec3());
+                let rises = |u: &[Vec3; 3], side: f64| {
+                    u.iter()
+                        .any(|&c| side * n.dot(c.as_dvec3() - o) > tau as f64)
+                };
+                [1.0, -1.0].map(|side: f64| {
+                    let set: Vec<[Vec3; 3]> = tris
+                        .iter()
+                        .enumerate()
+                        .filter(|&(u, tri)| u != t && rises(tri, side))
+                        .map(|(_, tri)| *tri)
+                        .collect();
+                    match (set.is_empty(), as_packets) {
+                        (true, _) => Blockers::Nothing,
+                        (false, true) => Blockers::Packets(packet::pack(&set)),
+                        (false, false) => Blockers::All,
+                    }
+                })
+            })
+            .collect();
+        BlockerSets { sides, planes, tau }
+    }
+
+    /// What the segment `a → b` must be tested against, given that one of its ends lies
+    /// on hidden triangle `flat`: the set of the side the other end is on, or
+    /// [`Blockers::All`] when both ends are within `τ` of the plane.
+    #[inline]
+    pub fn of_segment(&self, flat: u32, a: Vec3, b: Vec3) -> &Blockers {
+        let (n, o) = self.planes[flat as usize];
+        // One end is (up to rounding) in the plane; the sum is the other end's height.
+        let h = n.dot(a - o) + n.dot(b - o);
+        let sides = &self.sides[flat as usize];
+        if h > self.tau {
+            &sides[0]
+        } else if h < -self.tau {
+            &sides[1]
+        } else {
+            &Blockers::All
+        }
+    }
+
+    /// How many triangle sides need no hidden-geometry test at all (for the docs' figures).
+    pub fn empty_sides(&self) -> usize {
+        self.sides
+            .iter()
+            .flatten()
+            .filter(|b| matches!(b, Blockers::Nothing))
+            .count()
+    }
+}

@@ -1,0 +1,179 @@
+//! Shadow-ray culling (`geometry::blockers`): a segment touching hidden triangle `t` is
+//! tested only against the triangles that rise above `t`'s plane on the segment's side.
+//! Against the full test on the same segments, on a planar letter, a convex sphere, a
+//! concave sheet and arc, and the extruded default letter: the two agree except on rays
+//! that graze `t`'s plane, where rounding decides either test.
+
+mod common;
+
+use common::SceneSpec;
+use glam::Vec3;
+use std::path::Path;
+use umbra::geometry::shapes::{icosphere, wavy_sheet};
+use umbra::geometry::SceneGeometry;
+use umbra::rng::Sampler;
+use umbra::scene::Scene;
+
+fn xml(name: &str) -> Scene {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("python/validation/scenes")
+        .join(name);
+    Scene::load(&p).unwrap_or_else(|e| panic!("{e}"))
+}
+
+fn with_mesh(mesh: umbra::geometry::mesh::TriMesh) -> Scene {
+    let mut s = SceneSpec::default().scene();
+    s.objects[0].mesh = mesh;
+    s
+}
+
+/// Exact visibility of the segment `a → b` as intended: `a` on hidden triangle `ta`, `b`
+/// on `tb` (or `None`: the wall or free space), both projected onto their planes in `f64`,
+/// tested in `f64` against every other triangle and the wall over `[eps, |b − a| − eps]`.
+fn reference(geom: &SceneGeometry, (a, ta): (Vec3, u32), (b, tb): (Vec3, Option<u32>)) -> bool {
+    let onto = |p: Vec3, t: u32| {
+        let tri = &geom.hidden[t as usize];
+        let n = tri.n.as_dvec3().normalize();
+        let p = p.as_dvec3();
+        p - n * n.dot(p - tri.v[0].as_dvec3())
+    };
+    let a = onto(a, ta);
+    let b = tb.map_or(b.as_dvec3(), |t| onto(b, t));
+    let dist = (b - a).length();
+    let (d, eps) = ((b - a) / dist, geom.eps as f64);
+    if dist <= 2.0 * eps {
+        return false;
+    }
+    let hits = |[v0, v1, v2]: [Vec3; 3]| {
+        let (v0, e1, e2) = (v0.as_dvec3(), (v1 - v0).as_dvec3(), (v2 - v0).as_dvec3());
+        let p = d.cross(e2);
+        let det = e1.dot(p);
+        if det == 0.0 {
+            return false;
+        }
+        let c = a - v0;
+        let u = c.dot(p) / det;
+        let q = c.cross(e1);
+        let v = d.dot(q) / det;
+        let t = e2.dot(q) / det;
+        u >= 0.0 && v >= 0.0 && u + v <= 1.0 && t >= eps && t <= dist - eps
+    };
+    let others = (0..geom.hidden.len() as u32).filter(|&u| u != ta && Some(u) != tb);
+    others
+        .map(|u| geom.hidden[u as usize].v)
+        .chain(geom.wall_tris)
+        .any(hits)
+}
+
+/// Mismatches against [`reference`] on segments from area-sampled points of the hidden
+/// triangles to wall points, to other hidden points and to points in space, either end
+/// first, in-plane ones left out: `(segments, full test wrong, culled test wrong, largest |cos θ_t| where the two
+/// tests differ)`.
+fn compare(geom: &SceneGeometry, wall: &umbra::scene::RelayWall, n: u32) -> (u32, u32, u32, f32) {
+    let (mut full_wrong, mut culled_wrong, mut worst) = (0, 0, 0.0f32);
+    let point = |s: &mut Sampler| {
+        let ts = geom.hidden_area.sample(s.next_2d());
+        (geom.hidden[ts.tri as usize].point(ts.bary), ts.tri)
+    };
+    for i in 0..n {
+        let mut s = Sampler::independent(11, 0, i);
+        let (a, t) = point(&mut s);
+        let (b, tb) = match i % 3 {
+            0 => {
+                let [u, v] = s.next_2d();
+                (
+                    wall.center + (u - 0.5) * wall.axis_u + (v - 0.5) * wall.axis_v,
+                    None,
+                )
+            }
+            1 => {
+                let (b, tb) = point(&mut s);
+                (b, Some(tb))
+            }
+            _ => {
+                let ([x, y], [z, _]) = (s.next_2d(), s.next_2d());
+                (a + 0.6 * Vec3::new(x - 0.5, y - 0.5, z - 0.5), None)
+            }
+        };
+        // Either end may be the one on t.
+        let (p, q) = if i % 2 == 0 { (a, b) } else { (b, a) };
+        let (full, culled) = (geom.occluded(p, q), geom.occluded_touching(p, q, t));
+        let cos = geom.hidden[t as usize].n.dot((b - a).normalize()).abs();
+        if cos < 1e-5 {
+            // In t's plane (two points of a planar mesh): visibility there is undefined
+            // (0/0 in every triangle test) and such a segment carries no weight.
+            continue;
+        }
+        let truth = reference(geom, (a, t), (b, tb));
+        full_wrong += (full != truth) as u32;
+        culled_wrong += (culled != truth) as u32;
+        if full != culled {
+            // Culling only drops hidden triangles: it can clear a segment, never block one.
+            assert!(
+                full && !culled,
+                "culling blocked a segment the full test clears"
+            );
+            worst = worst.max(cos);
+        }
+    }
+    (n, full_wrong, culled_wrong, worst)
+}
+
+#[test]
+fn culled_shadow_rays_agree_with_the_full_test() {
+    let cases: Vec<(&str, Scene)> = vec![
+        ("planar letter T.xml (packets)", xml("T.xml")),
+        ("concave arc arc.xml (packets)", xml("arc.xml")),
+        (
+            "sphere, 320 triangles (BVH)",
+            with_mesh(icosphere(Vec3::new(0.0, 0.0, 0.6), 0.2, 2)),
+        ),
+        (
+            "wavy sheet, 50 triangles (packets)",
+            with_mesh(wavy_sheet(Vec3::new(0.0, 0.0, 0.6), 0.5, 5, 0.05, 0.3)),
+        ),
+        (
+            "wavy sheet, 200 triangles (BVH)",
+            with_mesh(wavy_sheet(Vec3::new(0.0, 0.0, 0.6), 0.5, 10, 0.05, 0.3)),
+        ),
+        (
+            "default extruded letter (BVH)",
+            umbra::scene::default::default_scene().unwrap(),
+        ),
+    ];
+    for (name, scene) in cases {
+        let geom = SceneGeometry::build(&scene);
+        let (n, full_wrong, culled_wrong, worst) = compare(&geom, &scene.wall, 30_000);
+        let sides = geom.unblockable_sides();
+        eprintln!(
+            "{name}: of {n} segments the full test gets {full_wrong} wrong, the culled \
+             {culled_wrong} (they differ at |cos| <= {worst:.2e}); {sides} of {} triangle \
+             sides cull every hidden triangle",
+            2 * geom.hidden.len()
+        );
+        // Culling is never less exact than the full test, and where they differ the
+        // segment grazes the triangle's plane.
+        assert!(culled_wrong <= full_wrong, "{name}");
+        assert!(culled_wrong <= n / 1000, "{name}: {culled_wrong} of {n}");
+        assert!(worst < 0.05, "{name}: a segment at |cos| {worst} differs");
+    }
+}
+
+/// What the sets are on shapes whose answer is known: a planar mesh culls every hidden
+/// triangle from both sides, a convex one from the outside, a concave one not everywhere.
+#[test]
+fn blocker_sets_of_known_shapes() {
+    let t = SceneGeometry::build(&xml("T.xml"));
+    assert_eq!(t.unblockable_sides(), 2 * t.hidden.len());
+    let sphere = SceneGeometry::build(&with_mesh(icosphere(Vec3::new(0.0, 0.0, 0.6), 0.2, 2)));
+    assert_eq!(sphere.unblockable_sides(), sphere.hidden.len());
+    let sheet = SceneGeometry::build(&with_mesh(wavy_sheet(
+        Vec3::new(0.0, 0.0, 0.6),
+        0.5,
+        5,
+        0.05,
+        0.3,
+    )));
+    let culled = sheet.unblockable_sides();
+    assert!(culled > 0 && culled < 2 * sheet.hidden.len(), "{culled}");
+}

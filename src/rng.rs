@@ -11,25 +11,59 @@
 /// 2-D pairs per sample drawn from scrambled Sobol' points.
 pub const SOBOL_PAIRS: u32 = 16;
 
+/// The scramble seeds of the Sobol' pairs of one stream `(seed, stream)`: they do not
+/// depend on the sample index, so a renderer computes them once per measurement and
+/// draws every sample's [`Sampler`] from them ([`StreamSeeds::sampler`]), which gives the
+/// same numbers as [`Sampler::new`] without two hashes per sample and one per pair.
+#[derive(Clone, Debug)]
+pub struct StreamSeeds {
+    key: u64,
+    pairs: [(u32, u32, u32); SOBOL_PAIRS as usize],
+}
+
+impl StreamSeeds {
+    pub fn new(seed: u64, stream: u64) -> Self {
+        let key = stream_key(seed, stream);
+        StreamSeeds {
+            key,
+            pairs: std::array::from_fn(|p| pair_seeds(key, p as u32)),
+        }
+    }
+
+    /// Sample `index` of this stream: [`Sampler::new`]`(seed, stream, index)`.
+    #[inline]
+    pub fn sampler(&self, index: u32) -> Sampler<'_> {
+        Sampler {
+            key: self.key,
+            index,
+            index_reversed: index.reverse_bits(),
+            dim: 0,
+            pairs: Some(&self.pairs),
+        }
+    }
+}
+
 /// A stateful view of one sample's stream of numbers in [0, 1).
 #[derive(Clone, Debug)]
-pub struct Sampler {
+pub struct Sampler<'a> {
     key: u64,
     index: u32,
     /// `index` bit-reversed, computed once (the scramble works on reversed numbers).
     index_reversed: u32,
     dim: u32,
+    /// The stream's pair seeds when computed once ([`StreamSeeds`]); else per pair.
+    pairs: Option<&'a [(u32, u32, u32); SOBOL_PAIRS as usize]>,
 }
 
-impl Sampler {
+impl Sampler<'static> {
     /// The stream of sample `index` of measurement `stream` under `seed`.
     pub fn new(seed: u64, stream: u64, index: u32) -> Self {
-        let key = mix64(seed ^ mix64(stream.wrapping_add(0x9E37_79B9_7F4A_7C15)));
         Sampler {
-            key,
+            key: stream_key(seed, stream),
             index,
             index_reversed: index.reverse_bits(),
             dim: 0,
+            pairs: None,
         }
     }
 
@@ -40,7 +74,23 @@ impl Sampler {
         s.dim = 2 * SOBOL_PAIRS;
         s
     }
+}
 
+/// The key of stream `(seed, stream)`.
+fn stream_key(seed: u64, stream: u64) -> u64 {
+    mix64(seed ^ mix64(stream.wrapping_add(0x9E37_79B9_7F4A_7C15)))
+}
+
+/// The scramble seeds of pair `pair` of the stream with `key`: index shuffle, x, y (from
+/// one 64-bit hash of the key and the pair).
+#[inline]
+fn pair_seeds(key: u64, pair: u32) -> (u32, u32, u32) {
+    let h = mix64(key ^ (pair as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
+    let seed_y = (h.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as u32;
+    (h as u32, (h >> 32) as u32, seed_y)
+}
+
+impl Sampler<'_> {
     /// Next pair of stratified numbers in [0, 1)².
     #[inline]
     pub fn next_2d(&mut self) -> [f32; 2] {
@@ -80,13 +130,13 @@ impl Sampler {
         self.first_at(r.0)
     }
 
-    /// The scramble seeds of pair `pair`: index shuffle, x, y (from one 64-bit hash of
-    /// the key and the pair).
+    /// The scramble seeds of pair `pair < SOBOL_PAIRS`.
     #[inline]
     fn pair_seeds(&self, pair: u32) -> (u32, u32, u32) {
-        let h = mix64(self.key ^ (pair as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
-        let seed_y = (h.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as u32;
-        (h as u32, (h >> 32) as u32, seed_y)
+        match self.pairs {
+            Some(p) => p[pair as usize],
+            None => pair_seeds(self.key, pair),
+        }
     }
 
     /// The Owen-scrambled index (Burley's shuffle) of this sample for pair `pair`: the
@@ -214,6 +264,17 @@ mod tests {
         let mut s = Sampler::new(7, 3, 11);
         let mut t = Sampler::new(7, 4, 11);
         assert_ne!(s.next_2d(), t.next_2d());
+    }
+
+    #[test]
+    fn stream_seeds_give_the_numbers_of_new() {
+        let seeds = StreamSeeds::new(7, 3);
+        for index in [0u32, 1, 11, 4095, u32::MAX] {
+            let (mut a, mut b) = (Sampler::new(7, 3, index), seeds.sampler(index));
+            for _ in 0..(SOBOL_PAIRS + 4) {
+                assert_eq!(a.next_2d(), b.next_2d());
+            }
+        }
     }
 
     #[test]

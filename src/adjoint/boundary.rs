@@ -390,7 +390,7 @@ struct View {
 }
 
 /// `path`'s longer paths, and the random numbers of one node's walks.
-type Walks<'a> = Option<(&'a LongerPaths, Sampler)>;
+type Walks<'a> = Option<(&'a LongerPaths, Sampler<'a>)>;
 
 /// `Σ_b δH_b F_b J dℓ` of the node for the hidden point `p` (its receiver, or the
 /// occluder at the edge), seen from the node's wall point `o` and lit from `other`

@@ -78,7 +78,7 @@ impl LongerPaths {
     /// A sampler for the walks of node `index` of the view in `slot` of measurement `m`,
     /// if the node is one of those that estimate the longer paths: one in [`SPLIT`]
     /// consecutive nodes, from a random offset per view (systematic, like the nodes).
-    pub fn node_sampler(&self, m: usize, slot: u64, index: u32) -> Option<Sampler> {
+    pub fn node_sampler(&self, m: usize, slot: u64, index: u32) -> Option<Sampler<'_>> {
         let offset = Sampler::new(self.seed, stream(m, slot | 8), 0).next_1d() * SPLIT as f32;
         (index % SPLIT == (offset as u32).min(SPLIT - 1))
             .then(|| Sampler::new(self.seed, stream(m, slot), index))

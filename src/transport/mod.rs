@@ -28,7 +28,7 @@ pub use render::{render, Progress, RenderOptions, Renderer, Transient};
 
 use crate::film::Film;
 use crate::geometry::SceneGeometry;
-use crate::rng::{Reserved, Sampler};
+use crate::rng::{Reserved, Sampler, StreamSeeds};
 use crate::scene::{Model, Scene};
 use glam::Vec3;
 use std::f32::consts::FRAC_1_PI;
@@ -185,8 +185,9 @@ pub fn run_samples<S: Sink>(
     sink: &mut S,
     scratch: &mut path::PathScratch,
 ) {
+    let seeds = StreamSeeds::new(seed, m);
     for i in range {
-        let mut sampler = Sampler::new(seed, m, i);
+        let mut sampler = seeds.sampler(i);
         match model {
             Model::Mc3 => mc3::sample(ctx, &mut sampler, sink),
             Model::Path => path::sample(ctx, &mut sampler, scratch, sink),

@@ -1,7 +1,7 @@
 //! Shadow-ray culling (`geometry::blockers`): a segment touching hidden triangle `t` is
 //! tested only against the triangles that rise above `t`'s plane on the segment's side.
 //! Against the full test on the same segments, on a planar letter, a convex sphere, a
-//! concave sheet and arc, and the extruded default letter: the two agree except on rays
+//! concave sheet and arc, and the default letter: the two agree except on rays
 //! that graze `t`'s plane, where rounding decides either test.
 
 mod common;
@@ -137,7 +137,7 @@ fn culled_shadow_rays_agree_with_the_full_test() {
             with_mesh(wavy_sheet(Vec3::new(0.0, 0.0, 0.6), 0.5, 10, 0.05, 0.3)),
         ),
         (
-            "default extruded letter (BVH)",
+            "default planar letter, 72 triangles (BVH)",
             umbra::scene::default::default_scene().unwrap(),
         ),
     ];
@@ -176,4 +176,78 @@ fn blocker_sets_of_known_shapes() {
     )));
     let culled = sheet.unblockable_sides();
     assert!(culled > 0 && culled < 2 * sheet.hidden.len(), "{culled}");
+}
+
+/// Dead-end continuations (`geometry::blockers::Reach`, `path_step::can_continue`): from a
+/// side of a hidden triangle that reaches no other hidden triangle, every point that
+/// hidden-geometry sampling can draw lies behind the triangle's plane or within
+/// `τ = eps/4` of it (heights in `f64` of points projected onto their planes), so the
+/// dropped continuations have `cos θ_x ≤ 0` up to the rounding of a planar mesh. And the counts on known shapes: a planar letter reaches nothing from
+/// either side, a convex sphere nothing from the outside, a concave arc something.
+#[test]
+fn dead_end_sides_reach_nothing() {
+    let cases: Vec<(&str, Scene, Option<usize>)> = vec![
+        ("planar letter T.xml", xml("T.xml"), Some(8)),
+        ("concave arc arc.xml", xml("arc.xml"), None),
+        (
+            "sphere, 320 triangles",
+            with_mesh(icosphere(Vec3::new(0.0, 0.0, 0.6), 0.2, 2)),
+            Some(320),
+        ),
+        (
+            "wavy sheet, 50 triangles",
+            with_mesh(wavy_sheet(Vec3::new(0.0, 0.0, 0.6), 0.5, 5, 0.05, 0.3)),
+            None,
+        ),
+        (
+            "default planar letter, 72 triangles",
+            umbra::scene::default::default_scene().unwrap(),
+            Some(144),
+        ),
+    ];
+    for (name, scene, expected) in cases {
+        let geom = SceneGeometry::build(&scene);
+        let onto = |p: Vec3, t: u32| {
+            let tri = &geom.hidden[t as usize];
+            let n = tri.n.as_dvec3().normalize();
+            let p = p.as_dvec3();
+            p - n * n.dot(p - tri.v[0].as_dvec3())
+        };
+        let tau = 0.25 * geom.eps as f64 + 1e-12;
+        let mut dead = 0;
+        let mut s = Sampler::independent(5, 1, 0);
+        for t in 0..geom.hidden.len() as u32 {
+            let tri = geom.hidden[t as usize];
+            for n_side in [tri.n, -tri.n] {
+                if geom.reach_from(t, n_side).hidden {
+                    continue;
+                }
+                dead += 1;
+                for _ in 0..64 {
+                    let x = onto(tri.point(s.next_2d()), t);
+                    let ts = geom.hidden_area.sample(s.next_2d());
+                    let y = onto(geom.hidden[ts.tri as usize].point(ts.bary), ts.tri);
+                    let h = n_side.as_dvec3().normalize().dot(y - x);
+                    assert!(
+                        h <= tau,
+                        "{name}: triangle {t} reaches {} at height {h}",
+                        ts.tri
+                    );
+                }
+            }
+        }
+        eprintln!(
+            "{name}: {dead} of {} triangle sides are dead ends",
+            2 * geom.hidden.len()
+        );
+        match expected {
+            Some(e) => assert_eq!(dead, e, "{name}"),
+            None => assert!(dead < 2 * geom.hidden.len(), "{name}: {dead}"),
+        }
+    }
+    // The wall is in front of the letter: reachable from its front side, not its back.
+    let t = SceneGeometry::build(&xml("T.xml"));
+    let n = t.hidden[0].n;
+    let toward_wall = if n.dot(t.wall_normal) < 0.0 { n } else { -n };
+    assert!(t.reach_from(0, toward_wall).wall && !t.reach_from(0, -toward_wall).wall);
 }

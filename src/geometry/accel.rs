@@ -6,7 +6,7 @@
 //! Rays that start or end on a surface are shortened by `eps` (a fraction of the scene
 //! size) at both ends, so a surface does not shadow itself.
 
-use super::blockers::{BlockerSets, Blockers};
+use super::blockers::{BlockerSets, Blockers, Reach};
 use super::packet::{self, TriPacket};
 use super::wall_plane::WallPlane;
 use crate::geometry::sampling::AreaDistribution;
@@ -163,7 +163,7 @@ impl SceneGeometry {
         let eps = 2e-6 * extent.max(1e-3) + 1e-6;
         let normals: Vec<Vec3> = hidden.iter().map(|t| t.n).collect();
         let as_packets = tris.len() <= PACKET_TRIANGLES;
-        let blockers = BlockerSets::build(&tris, &normals, 0.25 * eps, as_packets);
+        let blockers = BlockerSets::build(&tris, &normals, &wall_tris, 0.25 * eps, as_packets);
         let accel = if as_packets {
             HiddenAccel::Packets(packet::pack(&tris))
         } else {
@@ -296,6 +296,14 @@ impl SceneGeometry {
     #[inline]
     pub fn occluded_touching(&self, a: Vec3, b: Vec3, flat: u32) -> bool {
         self.occluded_by(a, b, self.blockers.of_segment(flat, a, b))
+    }
+
+    /// What hidden-geometry sampling can reach from hidden triangle `flat` on the side of
+    /// `n_side` ([`super::blockers`]: nothing, from a planar or convex object).
+    #[inline]
+    pub fn reach_from(&self, flat: u32, n_side: Vec3) -> Reach {
+        self.blockers
+            .reach(flat, n_side.dot(self.hidden[flat as usize].n) >= 0.0)
     }
 
     /// How many hidden-triangle sides need no hidden-geometry shadow test (of `2 N`).

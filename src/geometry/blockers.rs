@@ -20,6 +20,13 @@
 //! The sets are computed exactly (all pairs) for scenes of up to [`EXACT_TRIANGLES`]
 //! hidden triangles, and kept as packets where the scene's hidden triangles are packets;
 //! a BVH scene uses the full BVH whenever its set is not empty.
+//!
+//! The same heights say where a path can go next ([`Reach`]): a continuation from a point
+//! `x` of `t`, leaving on side `+`, to a point `y` with `n_t · (y − x) ≤ 0` has
+//! `cos θ_x ≤ 0`, so its weight is zero. Hidden-geometry sampling from `t` can thus reach
+//! only the triangles with a corner strictly in front of `P` (no tolerance here: dropping
+//! a target is exact in exact arithmetic, the dropped samples' nonzero weights in `f32`
+//! are rounding of `0/0`).
 
 use super::packet::{self, TriPacket};
 use glam::Vec3;
@@ -39,10 +46,20 @@ pub enum Blockers {
     All,
 }
 
+/// What hidden-geometry sampling can reach from one side of a hidden triangle: some
+/// other hidden triangle, or some wall triangle, with a corner strictly in front of it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Reach {
+    pub hidden: bool,
+    pub wall: bool,
+}
+
 /// The sets `B(t, +)` and `B(t, −)` of every hidden triangle `t`, by flat index.
 #[derive(Clone, Debug)]
 pub struct BlockerSets {
     sides: Vec<[Blockers; 2]>,
+    /// What each side can reach ([`Reach`]).
+    reach: Vec<[Reach; 2]>,
     /// Unit normal and a corner of each triangle's plane (as [`super::HiddenTri`] has them).
     planes: Vec<(Vec3, Vec3)>,
     /// Heights above a plane below which a segment's far end counts as in the plane.
@@ -52,16 +69,28 @@ pub struct BlockerSets {
 impl BlockerSets {
     /// The sets of `tris` (`[v0, v1, v2]`, unit normals `normals`), `tau` the coplanarity
     /// tolerance (m); `as_packets` keeps non-empty sets as packets, else as [`Blockers::All`].
-    pub fn build(tris: &[[Vec3; 3]], normals: &[Vec3], tau: f32, as_packets: bool) -> Self {
+    /// `wall_tris` are the relay wall's triangles (for [`Reach`]).
+    pub fn build(
+        tris: &[[Vec3; 3]],
+        normals: &[Vec3],
+        wall_tris: &[[Vec3; 3]],
+        tau: f32,
+        as_packets: bool,
+    ) -> Self {
         let planes: Vec<(Vec3, Vec3)> = normals.iter().zip(tris).map(|(&n, t)| (n, t[0])).collect();
-        let all = || vec![[Blockers::All, Blockers::All]; tris.len()];
+        let everywhere = Reach {
+            hidden: true,
+            wall: true,
+        };
         if tris.len() > EXACT_TRIANGLES {
             return BlockerSets {
-                sides: all(),
+                sides: vec![[Blockers::All, Blockers::All]; tris.len()],
+                reach: vec![[everywhere; 2]; tris.len()],
                 planes,
                 tau,
             };
         }
+        let mut reach = Vec::with_capacity(tris.len());
         let sides = (0..tris.len())
             .map(|t| {
                 // Heights in f64 from the f32 corners, so the sets themselves do not round.
@@ -70,22 +99,41 @@ impl BlockerSets {
                     u.iter()
                         .any(|&c| side * n.dot(c.as_dvec3() - o) > tau as f64)
                 };
-                [1.0, -1.0].map(|side: f64| {
+                let sets = [1.0, -1.0].map(|side: f64| {
                     let set: Vec<[Vec3; 3]> = tris
                         .iter()
                         .enumerate()
                         .filter(|&(u, tri)| u != t && rises(tri, side))
                         .map(|(_, tri)| *tri)
                         .collect();
-                    match (set.is_empty(), as_packets) {
+                    let r = Reach {
+                        hidden: !set.is_empty(),
+                        wall: wall_tris.iter().any(|u| rises(u, side)),
+                    };
+                    let blockers = match (set.is_empty(), as_packets) {
                         (true, _) => Blockers::Nothing,
                         (false, true) => Blockers::Packets(packet::pack(&set)),
                         (false, false) => Blockers::All,
-                    }
-                })
+                    };
+                    (blockers, r)
+                });
+                reach.push(sets.each_ref().map(|(_, r)| *r));
+                sets.map(|(b, _)| b)
             })
             .collect();
-        BlockerSets { sides, planes, tau }
+        BlockerSets {
+            sides,
+            reach,
+            planes,
+            tau,
+        }
+    }
+
+    /// What hidden-geometry sampling can reach from hidden triangle `flat`, leaving on the
+    /// side of its normal (`front`) or the other.
+    #[inline]
+    pub fn reach(&self, flat: u32, front: bool) -> Reach {
+        self.reach[flat as usize][usize::from(!front)]
     }
 
     /// What the segment `a → b` must be tested against, given that one of its ends lies

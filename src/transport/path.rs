@@ -20,7 +20,10 @@
 //! - **Russian roulette** once a path has `rr_bounces` bounces, survival probability the
 //!   local albedo (at most 0.95); `max_bounces` caps the length, `filter_bounces` keeps
 //!   only paths of one length (mitransient's `filter_bounces`, in our count), and
-//!   `discard_direct_paths` drops paths that never leave the wall.
+//!   `discard_direct_paths` drops paths that never leave the wall. A hidden vertex from
+//!   which hidden-geometry sampling alone continues and can reach nothing in front of its
+//!   plane (a planar or convex object, the wall not sampled) ends the path before the
+//!   step is drawn (`path_step::can_continue`: those continuations have zero weight).
 //!
 //! The measurement contribution of a path `x_s = y_0, y_1, …, y_k, x_l` is
 //! `f(y_0) G(y_0,y_1) f(y_1) … f(y_k) G(y_k, x_l) · P (ρ_w/π)` (point spot), each
@@ -54,7 +57,7 @@
 
 use super::mc3::TriParams;
 use super::path_step::{
-    bsdf_share, continuation, hidden_geometry_distribution, p_hg_at, step, survival,
+    bsdf_share, can_continue, continuation, hidden_geometry_distribution, p_hg_at, step, survival,
     technique_probabilities, Step, Surf, WalkVertex,
 };
 pub use super::path_step::{BSDF_SHARE_AT_HIDDEN, BSDF_SHARE_AT_WALL};
@@ -313,7 +316,7 @@ pub fn sample<S: Sink>(
     // that can close no kept path is not traced (a three-bounce render stops at y_1).
     let closing = if spot.is_point() { 2 } else { 1 };
     for j in 1u32.. {
-        if j + closing > max_bounces {
+        if j + closing > max_bounces || !can_continue(ctx, &x) {
             break;
         }
         // One stratified pair picks the technique and, rescaled, drives it.

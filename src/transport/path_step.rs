@@ -183,6 +183,25 @@ pub(crate) fn bsdf_share(
     }
 }
 
+/// Whether a continuation from `x` can have a nonzero weight. Not where only
+/// hidden-geometry sampling continues from a hidden vertex and every target lies on or
+/// behind the plane of its triangle on the side the path leaves from (a planar or convex
+/// object, the wall not among the targets, `geometry::blockers`'s [`Reach`]): every such
+/// sample has `cos θ_x ≤ 0` and [`step`] would reject it (up to rounding of `0/0` for a
+/// target in the plane), so the path ends without drawing it. The forward pass, its
+/// replay and the boundary terms' walks all ask here before each step.
+///
+/// [`Reach`]: crate::geometry::blockers::Reach
+#[inline]
+pub(crate) fn can_continue(ctx: &MeasurementCtx, x: &WalkVertex) -> bool {
+    let tech = &ctx.scene.render.techniques;
+    if x.on_wall() || tech.bsdf_sampling {
+        return true;
+    }
+    let reach = ctx.geom.reach_from(x.flat, x.n_side());
+    reach.hidden || (reach.wall && tech.hidden_geometry_includes_wall)
+}
+
 /// One sampled continuation.
 pub(crate) struct Step {
     pub y: WalkVertex,
@@ -338,12 +357,12 @@ pub(crate) fn walk(
     vertices.push(start);
     let (mut beta, mut opl) = (1.0f32, 0.0f32);
     for k in 1u32.. {
-        if first_bounce + k > last_bounce {
+        let x = vertices[vertices.len() - 1];
+        if first_bounce + k > last_bounce || !can_continue(ctx, &x) {
             break;
         }
         let u = sampler.next_2d();
         let u_rr = sampler.reserve_2d();
-        let x = vertices[vertices.len() - 1];
         let Some(s) = step(ctx, &x.s, x.on_wall(), u) else {
             break;
         };

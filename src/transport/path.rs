@@ -41,19 +41,23 @@
 //!
 //! **Adjoint (path replay).** The weights are written once over [`Real`]
 //! (`continuation` with its mixture density, `Spot`'s NEE and emission weights,
-//! `survival`); an adjoint sink makes the same loop carry, next to the
-//! `f32` state, a state in dual numbers with respect to the corners and albedos of up to
-//! [`PATH_TRIANGLES`] hidden triangles met on the path. A point drawn by area sampling
-//! keeps its barycentrics; a point found by a ray keeps the ray's sampled numbers, so it
-//! moves along the ray, whose direction follows the previous vertex's normal; the area
-//! densities use the current triangle areas over the (fixed) triangle probabilities, and
-//! the discrete choices (technique, triangle, Russian roulette) stay put: the derivative of
-//! the estimator at fixed random numbers, which finite differences with common random
-//! numbers check. Paths meeting more hidden triangles lose the further ones'
-//! derivatives (counted; see `adjoint`). A finite spot's NEE point is drawn on the disk
-//! and stays put; the spot rim's boundary term (a BSDF-sampled landing point crossing
-//! the rim) is not included, so gradients need laser sampling on (then those paths carry
-//! the small MIS share `q/(q + 1/(π r²))`), or BSDF sampling off (the gate says so).
+//! `survival`); an adjoint sink makes the same loop carry, next to the `f32` state, a
+//! state in dual numbers with respect to the corners and albedos of up to
+//! [`PATH_TRIANGLES`] hidden triangles met on the path. The dual state lags behind:
+//! each step (and Russian roulette's division) is recorded and applied only when a
+//! contribution needs the state, so the steps after a path's last contribution cost no
+//! dual arithmetic (the same operations in the same order: the same bits). A point
+//! drawn by area sampling keeps its barycentrics; a point found by a ray keeps the
+//! ray's sampled numbers, so it moves along the ray, whose direction follows the
+//! previous vertex's normal; the area densities use the current triangle areas over the
+//! (fixed) triangle probabilities, and the discrete choices (technique, triangle,
+//! Russian roulette) stay put: the derivative of the estimator at fixed random numbers,
+//! which finite differences with common random numbers check. Paths meeting more hidden
+//! triangles lose the further ones' derivatives (counted; see `adjoint`). A finite
+//! spot's NEE point is drawn on the disk and stays put; the spot rim's boundary term (a
+//! BSDF-sampled landing point crossing the rim) is not included, so gradients need
+//! laser sampling on (then those paths carry the small MIS share `q/(q + 1/(π r²))`),
+//! or BSDF sampling off (the gate says so).
 
 use super::mc3::TriParams;
 use super::path_step::{
@@ -75,13 +79,29 @@ pub const PATH_TRIANGLES: usize = 4;
 /// Dual numbers over [`PATH_TRIANGLES`] triangles' corners and albedos.
 pub type PathDual = Dual<f32, 48>;
 
-/// Per-thread counters of the adjoint pass (the forward pass keeps no per-path storage).
+/// Per-thread counters and storage of the adjoint pass (the forward pass keeps no
+/// per-path storage).
 #[derive(Default)]
 pub struct PathScratch {
     /// Adjoint pass: contributions whose path met more than [`PATH_TRIANGLES`] hidden
     /// triangles (their further derivatives are lost), and all contributions.
     pub truncated: u64,
     pub emitted: u64,
+    /// The replay's actions not yet applied ([`Deferred`]; one path's, reused).
+    deferred: Vec<Deferred>,
+}
+
+/// A replay action held back until a contribution needs the replay's state: the dual
+/// arithmetic of the steps after a path's last contribution (a step that lands on the
+/// wall and goes no further, a walk cut by Russian roulette) is never done. Applied in
+/// the order they were recorded, with the same inputs, so the derivatives are the same
+/// bits as a replay that follows every step at once.
+#[derive(Clone, Copy)]
+enum Deferred {
+    Step(Step, (f32, f32)),
+    /// Russian roulette's division by the survival probability at the replay's vertex:
+    /// the wall's albedo, or (`None`) the hidden vertex's own.
+    Survive(Option<f32>),
 }
 
 /// `w_bsdf` of the continuation from the sensor point to hidden point `y` (on hidden
@@ -275,6 +295,23 @@ impl Replay {
         self.x = Surf { p: y, n_side, f };
     }
 
+    /// Applies the actions deferred so far (`deferred` is left empty).
+    fn catch_up(&mut self, ctx: &MeasurementCtx, deferred: &mut Vec<Deferred>) {
+        for d in deferred.drain(..) {
+            match d {
+                Deferred::Step(st, techniques) => self.step(ctx, &st, techniques),
+                Deferred::Survive(wall_albedo) => {
+                    // The albedo in dual numbers: ρ = π f at a hidden vertex.
+                    let albedo = match wall_albedo {
+                        Some(a) => PathDual::c(a as f64),
+                        None => self.x.f.s(PI),
+                    };
+                    self.beta = self.beta / survival(albedo);
+                }
+            }
+        }
+    }
+
     /// The derivatives of a contribution's weight and OPL, per triangle slot.
     fn grads(&self, weight: &PathDual, opl: &PathDual) -> [HiddenGrad; PATH_TRIANGLES] {
         std::array::from_fn(|g| HiddenGrad {
@@ -310,6 +347,7 @@ pub fn sample<S: Sink>(
     let mut opl = ctx.opl_sensor_leg; // OPL from the detector (or x_s) to x
     let mut hidden_seen = false;
     let mut replay = S::ADJOINT.then(|| Replay::new(ctx));
+    scratch.deferred.clear();
 
     // The shortest path y_j can close: j + 1 bounces by landing on a finite spot; a point
     // spot is reached only by next-event estimation from y_j, j + 2 bounces. A vertex
@@ -333,8 +371,8 @@ pub fn sample<S: Sink>(
         beta *= st.factor;
         opl += st.dist;
         let y = st.y;
-        if let Some(rp) = replay.as_mut() {
-            rp.step(ctx, &st, techniques);
+        if replay.is_some() {
+            scratch.deferred.push(Deferred::Step(st, techniques));
         }
 
         if y.on_wall() {
@@ -346,7 +384,8 @@ pub fn sample<S: Sink>(
             {
                 let total_opl = opl + ctx.opl_laser_leg(y.p());
                 if total_opl >= ctx.opl_min && total_opl < ctx.opl_max {
-                    let grad = replay.as_ref().map(|rp| {
+                    let grad = replay.as_mut().map(|rp| {
+                        rp.catch_up(ctx, &mut scratch.deferred);
                         let w = spot.emission(rp.beta, rp.q);
                         let o = rp.opl + ctx.laser_leg(rp.x.p);
                         (rp.grads(&w, &o), rp.used, rp.truncated)
@@ -377,7 +416,8 @@ pub fn sample<S: Sink>(
                     let total_opl = opl + r_l + ctx.opl_laser_leg(x_l);
                     let in_film = total_opl >= ctx.opl_min && total_opl < ctx.opl_max;
                     if in_film && weight > 0.0 && !geom.occluded_touching(y.p(), x_l, y.flat) {
-                        let grad = replay.as_ref().and_then(|rp| {
+                        let grad = replay.as_mut().and_then(|rp| {
+                            rp.catch_up(ctx, &mut scratch.deferred);
                             let (w, r_d) = spot.nee(&rp.x, rp.beta, x_l, n_w, from_y, p_hg_l)?;
                             let o = rp.opl + r_d + PathDual::c(ctx.opl_laser_leg(x_l) as f64);
                             Some((rp.grads(&w, &o), rp.used, rp.truncated))
@@ -402,14 +442,9 @@ pub fn sample<S: Sink>(
                 break;
             }
             beta /= survive;
-            if let Some(rp) = replay.as_mut() {
-                // The albedo in dual numbers: ρ = π f at a hidden vertex.
-                let albedo = if y.on_wall() {
-                    PathDual::c(y.albedo as f64)
-                } else {
-                    rp.x.f.s(PI)
-                };
-                rp.beta = rp.beta / survival(albedo);
+            if replay.is_some() {
+                let wall_albedo = y.on_wall().then_some(y.albedo);
+                scratch.deferred.push(Deferred::Survive(wall_albedo));
             }
         }
         x = y;

@@ -203,6 +203,7 @@ pub(crate) fn can_continue(ctx: &MeasurementCtx, x: &WalkVertex) -> bool {
 }
 
 /// One sampled continuation.
+#[derive(Clone, Copy)]
 pub(crate) struct Step {
     pub y: WalkVertex,
     /// The surface's kind at `y`.

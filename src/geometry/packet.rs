@@ -1,7 +1,8 @@
-//! Ray queries against few triangles, four at a time: the triangles are stored in
-//! structure-of-arrays packets of four lanes, and one ray is tested against a whole packet
-//! with SIMD arithmetic (glam's `Vec4`, SSE2 on x86-64), by Möller and Trumbore's test
-//! ("Fast, minimum storage ray/triangle intersection", 1997): with `e1 = v0 − v1`,
+//! Ray queries against few triangles, eight at a time: the triangles are stored in
+//! structure-of-arrays packets of eight lanes, and one ray is tested against a whole
+//! packet with SIMD arithmetic (lane loops the compiler vectorises: AVX on x86-64-v3),
+//! by Möller and Trumbore's test ("Fast, minimum storage ray/triangle intersection",
+//! 1997): with `e1 = v0 − v1`,
 //! `e2 = v2 − v0`, `n = e1 × e2`, `c = v0 − o`, `r = d × c`,
 //!
 //! `det = n·d,  u = r·e2 / det,  v = r·e1 / det,  t = n·c / det`,
@@ -12,25 +13,32 @@
 //! fixed cost (`accel::PACKET_TRIANGLES` has the measurement); unused lanes hold a
 //! degenerate triangle (`n = 0`), which never hits.
 
-use glam::{Vec3, Vec4};
+use glam::Vec3;
 
-/// Four triangles, coordinate by coordinate.
+/// Triangles per packet: 8 lanes, one 256-bit AVX register per coordinate on x86-64-v3
+/// (the lane loops below are written for the compiler to vectorise).
+pub const LANES: usize = 8;
+
+type Lanes = [f32; LANES];
+
+/// Eight triangles, coordinate by coordinate.
 #[derive(Clone, Copy, Debug)]
+#[repr(C, align(32))]
 pub struct TriPacket {
-    v0: [Vec4; 3],
-    e1: [Vec4; 3],
-    e2: [Vec4; 3],
-    n: [Vec4; 3],
+    v0: [Lanes; 3],
+    e1: [Lanes; 3],
+    e2: [Lanes; 3],
+    n: [Lanes; 3],
 }
 
-/// Packs triangles `[v0, v1, v2]` four to a packet (the last one padded).
+/// Packs triangles `[v0, v1, v2]` eight to a packet (the last one padded).
 pub fn pack(tris: &[[Vec3; 3]]) -> Vec<TriPacket> {
-    tris.chunks(4)
+    tris.chunks(LANES)
         .map(|group| {
             let lane = |k: usize| group.get(k).copied().unwrap_or([Vec3::ZERO; 3]);
             let coords = |f: &dyn Fn([Vec3; 3]) -> Vec3| {
-                let p: [Vec3; 4] = std::array::from_fn(|k| f(lane(k)));
-                [0, 1, 2].map(|a| Vec4::from_array(p.map(|v| v[a])))
+                let p: [Vec3; LANES] = std::array::from_fn(|k| f(lane(k)));
+                [0, 1, 2].map(|a| p.map(|v| v[a]))
             };
             TriPacket {
                 v0: coords(&|t| t[0]),
@@ -42,40 +50,37 @@ pub fn pack(tris: &[[Vec3; 3]]) -> Vec<TriPacket> {
         .collect()
 }
 
-#[inline(always)]
-fn dot(a: &[Vec4; 3], b: &[Vec4; 3]) -> Vec4 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
 impl TriPacket {
     /// The hit distance of the ray `o + t d` on each lane, `INFINITY` where it misses or
-    /// falls outside `[tmin, tmax]`.
+    /// falls outside `[tmin, tmax]`. Each lane runs the scalar test's operations in its
+    /// order (`a0 b0 + a1 b1 + a2 b2` for every dot product, no fused multiply-add).
     #[inline(always)]
-    pub fn intersect(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Vec4 {
-        let c = [
-            self.v0[0] - Vec4::splat(o.x),
-            self.v0[1] - Vec4::splat(o.y),
-            self.v0[2] - Vec4::splat(o.z),
-        ];
-        let (dx, dy, dz) = (Vec4::splat(d.x), Vec4::splat(d.y), Vec4::splat(d.z));
-        let r = [
-            dy * c[2] - dz * c[1],
-            dz * c[0] - dx * c[2],
-            dx * c[1] - dy * c[0],
-        ];
-        let det = self.n[0] * dx + self.n[1] * dy + self.n[2] * dz;
-        let inv_det = Vec4::ONE / det;
-        let u = dot(&r, &self.e2) * inv_det;
-        let v = dot(&r, &self.e1) * inv_det;
-        let w = Vec4::ONE - u - v;
-        let t = dot(&self.n, &c) * inv_det;
-        let hit = det.cmpne(Vec4::ZERO)
-            & u.cmpge(Vec4::ZERO)
-            & v.cmpge(Vec4::ZERO)
-            & w.cmpge(Vec4::ZERO)
-            & t.cmpge(Vec4::splat(tmin))
-            & t.cmple(Vec4::splat(tmax));
-        Vec4::select(hit, t, Vec4::INFINITY)
+    pub fn intersect(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Lanes {
+        let mut out = [f32::INFINITY; LANES];
+        for (k, out) in out.iter_mut().enumerate() {
+            let c = [
+                self.v0[0][k] - o.x,
+                self.v0[1][k] - o.y,
+                self.v0[2][k] - o.z,
+            ];
+            let r = [
+                d.y * c[2] - d.z * c[1],
+                d.z * c[0] - d.x * c[2],
+                d.x * c[1] - d.y * c[0],
+            ];
+            let (n, e1, e2) = (&self.n, &self.e1, &self.e2);
+            let det = n[0][k] * d.x + n[1][k] * d.y + n[2][k] * d.z;
+            let inv_det = 1.0 / det;
+            let u = (r[0] * e2[0][k] + r[1] * e2[1][k] + r[2] * e2[2][k]) * inv_det;
+            let v = (r[0] * e1[0][k] + r[1] * e1[1][k] + r[2] * e1[2][k]) * inv_det;
+            let w = 1.0 - u - v;
+            let t = (n[0][k] * c[0] + n[1][k] * c[1] + n[2][k] * c[2]) * inv_det;
+            // `&`, not `&&`: no branch per lane.
+            let hit =
+                (det != 0.0) & (u >= 0.0) & (v >= 0.0) & (w >= 0.0) & (t >= tmin) & (t <= tmax);
+            *out = if hit { t } else { f32::INFINITY };
+        }
+        out
     }
 }
 
@@ -92,11 +97,11 @@ pub fn closest(
     let mut found = false;
     for (k, p) in packets.iter().enumerate() {
         let t = p.intersect(o, d, tmin, best.0);
-        let m = t.min_element();
+        let m = t.iter().copied().fold(f32::INFINITY, f32::min);
         if m < f32::INFINITY {
             // Lanes are in triangle order; on a tie the lowest index wins.
-            let lane = t.to_array().iter().position(|&x| x == m).unwrap_or(0);
-            best = (m, (4 * k + lane) as u32);
+            let lane = t.iter().position(|&x| x == m).unwrap_or(0);
+            best = (m, (LANES * k + lane) as u32);
             found = true;
         }
     }
@@ -106,9 +111,11 @@ pub fn closest(
 /// Whether any of `packets` is hit within `[tmin, tmax]`.
 #[inline]
 pub fn any_hit(packets: &[TriPacket], o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
-    packets
-        .iter()
-        .any(|p| p.intersect(o, d, tmin, tmax).cmplt(Vec4::INFINITY).any())
+    packets.iter().any(|p| {
+        p.intersect(o, d, tmin, tmax)
+            .iter()
+            .fold(false, |any, &t| any | (t < f32::INFINITY))
+    })
 }
 
 #[cfg(test)]
@@ -136,7 +143,7 @@ mod tests {
             let [c, _] = s.next_2d();
             Vec3::new(a - 0.5, b - 0.5, c - 0.5) * scale
         };
-        for n in [1usize, 3, 4, 5, 11] {
+        for n in [1usize, 3, 4, 5, 8, 9, 11, 17] {
             for _ in 0..400 {
                 let tris: Vec<[Vec3; 3]> = (0..n)
                     .map(|_| {
@@ -151,7 +158,7 @@ mod tests {
                 let packets = pack(&tris);
                 let lanes: Vec<f32> = packets
                     .iter()
-                    .flat_map(|p| p.intersect(o, d, tmin, tmax).to_array())
+                    .flat_map(|p| p.intersect(o, d, tmin, tmax))
                     .take(n)
                     .collect();
                 for (a, b) in scalar.iter().zip(&lanes) {

@@ -1,8 +1,9 @@
 //! Shadow-ray culling (`geometry::blockers`): a segment touching hidden triangle `t` is
 //! tested only against the triangles that rise above `t`'s plane on the segment's side.
 //! Against the full test on the same segments, on a planar letter, a convex sphere, a
-//! concave sheet and arc, and the default letter: the two agree except on rays
-//! that graze `t`'s plane, where rounding decides either test.
+//! concave sheet and arc, and the default letter: the two agree except on rays that
+//! graze `t`'s plane, where rounding decides either test. And the dead-end continuations
+//! that the same heights give (`blockers::Reach`).
 
 mod common;
 
@@ -182,8 +183,9 @@ fn blocker_sets_of_known_shapes() {
 /// side of a hidden triangle that reaches no other hidden triangle, every point that
 /// hidden-geometry sampling can draw lies behind the triangle's plane or within
 /// `τ = eps/4` of it (heights in `f64` of points projected onto their planes), so the
-/// dropped continuations have `cos θ_x ≤ 0` up to the rounding of a planar mesh. And the counts on known shapes: a planar letter reaches nothing from
-/// either side, a convex sphere nothing from the outside, a concave arc something.
+/// dropped continuations have `cos θ_x ≤ 0` up to the rounding of a planar mesh. And
+/// the counts on known shapes: a planar letter reaches nothing from either side, a convex
+/// sphere nothing from the outside, a concave arc and sheet something.
 #[test]
 fn dead_end_sides_reach_nothing() {
     let cases: Vec<(&str, Scene, Option<usize>)> = vec![

@@ -24,9 +24,10 @@
 //! The same heights say where a path can go next ([`Reach`]): a continuation from a point
 //! `x` of `t`, leaving on side `+`, to a point `y` with `n_t · (y − x) ≤ 0` has
 //! `cos θ_x ≤ 0`, so its weight is zero. Hidden-geometry sampling from `t` can thus reach
-//! only the triangles with a corner strictly in front of `P` (no tolerance here: dropping
-//! a target is exact in exact arithmetic, the dropped samples' nonzero weights in `f32`
-//! are rounding of `0/0`).
+//! only the triangles of `B(t, +)`, with the same `τ`: a triangle rising at most `τ`
+//! above `P` (rounding of a planar mesh) counts as in the plane, where both cosines of a
+//! continuation are rounding of `0/0` (dropping those moves T.xml's multi-bounce render
+//! by 5e-10 relative L2).
 
 use super::packet::{self, TriPacket};
 use glam::Vec3;
@@ -47,7 +48,8 @@ pub enum Blockers {
 }
 
 /// What hidden-geometry sampling can reach from one side of a hidden triangle: some
-/// other hidden triangle, or some wall triangle, with a corner strictly in front of it.
+/// other hidden triangle, or some wall triangle, with a corner more than `τ` in front of
+/// its plane.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Reach {
     pub hidden: bool,

@@ -2,8 +2,7 @@
 //! structure-of-arrays packets of eight lanes, and one ray is tested against a whole
 //! packet with SIMD arithmetic (lane loops the compiler vectorises: AVX on x86-64-v3),
 //! by Möller and Trumbore's test ("Fast, minimum storage ray/triangle intersection",
-//! 1997): with `e1 = v0 − v1`,
-//! `e2 = v2 − v0`, `n = e1 × e2`, `c = v0 − o`, `r = d × c`,
+//! 1997): with `e1 = v0 − v1`, `e2 = v2 − v0`, `n = e1 × e2`, `c = v0 − o`, `r = d × c`,
 //!
 //! `det = n·d,  u = r·e2 / det,  v = r·e1 / det,  t = n·c / det`,
 //!

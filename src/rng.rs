@@ -43,6 +43,22 @@ impl StreamSeeds {
     }
 }
 
+impl StreamSeeds {
+    /// Sobol' pair `pair` (`< SOBOL_PAIRS`) of `L` consecutive samples `first..first + L`
+    /// at once, as `[xs, ys]`: lane `k` holds what the `pair`-th [`Sampler::next_2d`] of
+    /// [`StreamSeeds::sampler`]`(first + k)` returns, bit for bit (the same integer hashes,
+    /// written as lane loops so that they vectorise).
+    #[inline]
+    pub fn pair_lanes<const L: usize>(&self, pair: u32, first: u32) -> [[f32; L]; 2] {
+        let (seed_index, seed_x, seed_y) = self.pairs[pair as usize];
+        let index: [u32; L] = std::array::from_fn(|k| first.wrapping_add(k as u32));
+        let i = index.map(|j| laine_karras(j.reverse_bits(), seed_index).reverse_bits());
+        let x = i.map(|i| to_unit(laine_karras(i, seed_x).reverse_bits()));
+        let y = i.map(|i| to_unit(laine_karras(sobol_dim1_reversed(i), seed_y).reverse_bits()));
+        [x, y]
+    }
+}
+
 /// A stateful view of one sample's stream of numbers in [0, 1).
 #[derive(Clone, Debug)]
 pub struct Sampler<'a> {
@@ -273,6 +289,23 @@ mod tests {
             let (mut a, mut b) = (Sampler::new(7, 3, index), seeds.sampler(index));
             for _ in 0..(SOBOL_PAIRS + 4) {
                 assert_eq!(a.next_2d(), b.next_2d());
+            }
+        }
+    }
+
+    #[test]
+    fn lanes_give_the_numbers_of_the_samplers() {
+        let seeds = StreamSeeds::new(7, 3);
+        for first in [0u32, 8, 1000, u32::MAX - 7] {
+            for pair in 0..SOBOL_PAIRS {
+                let [x, y] = seeds.pair_lanes::<8>(pair, first);
+                for k in 0..8 {
+                    let mut s = seeds.sampler(first + k as u32);
+                    for _ in 0..pair {
+                        s.next_2d();
+                    }
+                    assert_eq!(s.next_2d(), [x[k], y[k]], "first {first} pair {pair}");
+                }
             }
         }
     }

@@ -1,0 +1,187 @@
+//! The primal pass of [`super::mc3`] eight samples at a time (DESIGN §3, rung 2).
+//!
+//! The estimator is `mc3`'s, contribution for contribution: the same numbers, the same
+//! triangle, the same weight and OPL, bit for bit, handed to the sink in sample order.
+//! Only the evaluation order changes. For `L` consecutive samples of one measurement:
+//!
+//! 1. their first Sobol' pair ([`StreamSeeds::pair_lanes`]) and triangle picks
+//!    ([`crate::geometry::sampling::AreaDistribution::sample_lanes`]) in lanes;
+//! 2. the picked triangles' corners, normals, areas and albedos gathered into lanes;
+//! 3. [`super::mc3::evaluate`]'s formula in lanes, operation for operation (`x`, both legs'
+//!    lengths and cosines, the facing, wall and film tests as masks, the geometry term);
+//! 4. per live lane, in order: the two shadow tests and the sink.
+//!
+//! Lane arithmetic is written as loops over `[f32; L]`, each `if` a select, so that the
+//! compiler turns it into vector instructions with the scalar code's rounding (IEEE
+//! `+ − × ÷ √` are exactly rounded either way; no fused multiply-adds). The adjoint pass
+//! keeps the scalar [`super::mc3::sample`]: it replays the same contributions because
+//! these are the same bits (tested in `tests/mc3_lanes.rs`).
+
+use super::{mc3, spot_point, Contribution, MeasurementCtx, Sink};
+use crate::geometry::HiddenTri;
+use crate::rng::StreamSeeds;
+use glam::Vec3;
+use std::f32::consts::FRAC_1_PI;
+
+/// Samples evaluated together.
+pub const LANES: usize = 8;
+
+type F = [f32; LANES];
+
+/// Runs samples `range` of the measurement with stream seeds `seeds` into `sink`: what
+/// a loop of [`mc3::sample`] over the range gives, in the same order. A primal sink only
+/// (no derivatives).
+pub fn run<S: Sink>(
+    ctx: &MeasurementCtx,
+    seeds: &StreamSeeds,
+    range: std::ops::Range<u32>,
+    sink: &mut S,
+) {
+    debug_assert!(!S::ADJOINT);
+    let mut first = range.start;
+    while range.end - first >= LANES as u32 {
+        run_lanes(ctx, seeds, first, sink);
+        first += LANES as u32;
+    }
+    for i in first..range.end {
+        mc3::sample(ctx, &mut seeds.sampler(i), sink);
+    }
+}
+
+/// Samples `first..first + LANES`.
+#[inline]
+fn run_lanes<S: Sink>(ctx: &MeasurementCtx, seeds: &StreamSeeds, first: u32, sink: &mut S) {
+    let geom = ctx.geom;
+    // `mc3::draw`: pair 0 picks the triangle and the point, pair 1 the spot's point.
+    let [u0, u1] = seeds.pair_lanes::<LANES>(0, first);
+    let ts = geom.hidden_area.sample_lanes(u0, u1);
+    let spot: [Vec3; LANES] = if ctx.scene.laser.spot_radius > 0.0 {
+        let [s0, s1] = seeds.pair_lanes::<LANES>(1, first);
+        std::array::from_fn(|k| spot_point(ctx, [s0[k], s1[k]]))
+    } else {
+        [ctx.x_l; LANES]
+    };
+    let tris: [&HiddenTri; LANES] = ts.tri.map(|t| &geom.hidden[t as usize]);
+    let lanes = evaluate(ctx, &tris, [ts.b1, ts.b2], ts.prob, &spot);
+    for k in (0..LANES).filter(|&k| lanes.live[k]) {
+        let x = Vec3::new(lanes.x[0][k], lanes.x[1][k], lanes.x[2][k]);
+        let blocked = |b: Vec3| geom.occluded_touching(x, b, ts.tri[k]);
+        if blocked(spot[k]) || blocked(ctx.x_s) {
+            continue;
+        }
+        sink.add(&Contribution {
+            opl: lanes.opl[k],
+            weight: lanes.weight[k],
+            bounces: 3,
+        });
+    }
+}
+
+/// `mc3::evaluate` of eight samples: the hidden points, and per lane whether the sample
+/// contributes before visibility (`Some` there, with a positive weight) and its weight
+/// and OPL.
+struct Evaluated {
+    x: [F; 3],
+    live: [bool; LANES],
+    weight: F,
+    opl: F,
+}
+
+/// A lane per sample of `f(k)`.
+#[inline(always)]
+fn lanes(f: impl FnMut(usize) -> f32) -> F {
+    std::array::from_fn(f)
+}
+
+/// `a · b` per lane: `a0 b0 + a1 b1 + a2 b2`, as [`crate::adjoint::dual::dot`].
+#[inline(always)]
+fn dot(a: &[F; 3], b: &[F; 3]) -> F {
+    lanes(|k| a[0][k] * b[0][k] + a[1][k] * b[1][k] + a[2][k] * b[2][k])
+}
+
+/// `c − v` per lane for a constant `c`.
+#[inline(always)]
+fn from_const(c: Vec3, v: &[F; 3]) -> [F; 3] {
+    let c = c.to_array();
+    std::array::from_fn(|i| lanes(|k| c[i] - v[i][k]))
+}
+
+/// A 3-vector field of the lanes' triangles.
+#[inline(always)]
+fn gather3(tris: &[&HiddenTri; LANES], f: impl Fn(&HiddenTri) -> Vec3) -> [F; 3] {
+    let v: [Vec3; LANES] = tris.map(&f);
+    std::array::from_fn(|i| lanes(|k| v[k][i]))
+}
+
+/// [`mc3::evaluate`] (through its `evaluate_on`, the normal and area read from the
+/// triangle) in lanes, the same operations in the same order; the spot point per lane.
+/// The tests are the scalar code's negations, so that a NaN passes where it passes there.
+#[inline(always)]
+#[allow(clippy::neg_cmp_op_on_partial_ord)]
+fn evaluate(
+    ctx: &MeasurementCtx,
+    tris: &[&HiddenTri; LANES],
+    [b1, b2]: [F; 2],
+    prob: F,
+    spot: &[Vec3; LANES],
+) -> Evaluated {
+    let b0 = lanes(|k| 1.0 - b1[k] - b2[k]);
+    let (v0, v1, v2) = (
+        gather3(tris, |t| t.v[0]),
+        gather3(tris, |t| t.v[1]),
+        gather3(tris, |t| t.v[2]),
+    );
+    let n = gather3(tris, |t| t.n);
+    // `TriParams::point`: v0 b0 + v1 b1 + v2 b2.
+    let x: [F; 3] =
+        std::array::from_fn(|i| lanes(|k| v0[i][k] * b0[k] + v1[i][k] * b1[k] + v2[i][k] * b2[k]));
+    let x_l: [F; 3] = std::array::from_fn(|i| lanes(|k| spot[k][i]));
+    let d_l: [F; 3] = std::array::from_fn(|i| lanes(|k| x_l[i][k] - x[i][k]));
+    let d_s = from_const(ctx.x_s, &x);
+    let (ll, ss) = (dot(&d_l, &d_l), dot(&d_s, &d_s));
+    let (r_l, r_s) = (ll.map(f32::sqrt), ss.map(f32::sqrt));
+    let (c_l, c_s) = (dot(&n, &d_l), dot(&n, &d_s));
+    let n_w = ctx.n_w.to_array().map(|c| [c; LANES]);
+    let (cw_l, cw_s) = (dot(&n_w, &d_l).map(|c| -c), dot(&n_w, &d_s).map(|c| -c));
+    // The scalar code's constant OPL of the wall legs, per lane only for a finite spot.
+    let legs: F = lanes(|k| ctx.opl_laser_leg(spot[k]) + ctx.opl_sensor_leg);
+    let opl = lanes(|k| r_l[k] + r_s[k] + legs[k]);
+    let geometry = lanes(|k| {
+        let (r2_l, r2_s) = (r_l[k] * r_l[k], r_s[k] * r_s[k]);
+        let g = c_l[k] * cw_l[k] / (r2_l * r2_l) * (c_s[k] * cw_s[k] / (r2_s * r2_s));
+        // `Real::abs`: `-g` below zero, `g` otherwise (a zero keeps its sign).
+        if g < 0.0 {
+            -g
+        } else {
+            g
+        }
+    });
+    let albedo = (
+        lanes(|k| tris[k].albedo[0]),
+        lanes(|k| tris[k].albedo[1]),
+        lanes(|k| tris[k].albedo[2]),
+    );
+    let f_x =
+        lanes(|k| (albedo.0[k] * b0[k] + albedo.1[k] * b1[k] + albedo.2[k] * b2[k]) * FRAC_1_PI);
+    let area = lanes(|k| tris[k].area);
+    let three_bounce = ctx.three_bounce_constant();
+    let weight = lanes(|k| f_x[k] * geometry[k] * area[k] * (three_bounce / prob[k]));
+    let live = std::array::from_fn(|k| {
+        // The facing test on the signs: the scalar code multiplies the cosines in f64,
+        // where the product of two f32s cannot underflow.
+        let facing = if tris[k].two_sided {
+            (c_l[k] > 0.0 && c_s[k] > 0.0) || (c_l[k] < 0.0 && c_s[k] < 0.0)
+        } else {
+            c_l[k] > 0.0 && c_s[k] > 0.0
+        };
+        let front = !(cw_l[k] <= 0.0 || cw_s[k] <= 0.0);
+        let in_film = !(opl[k] < ctx.opl_min || opl[k] >= ctx.opl_max);
+        facing && front && in_film && !(weight[k] <= 0.0)
+    });
+    Evaluated {
+        x,
+        live,
+        weight,
+        opl,
+    }
+}

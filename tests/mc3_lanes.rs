@@ -5,7 +5,9 @@
 //! default scene, and builder scenes that reach the lane code's other branches: a
 //! finite laser spot, two-sided surfaces, more triangles than the counted pick handles,
 //! a Gaussian film window cut inside the returns, and a range that is not a multiple of
-//! eight.
+//! eight. Both shadow-test routes are covered: the lane test of which rays need tracing
+//! (planar and convex objects: T, the default scene, the square, the sphere) and the
+//! per-lane scalar test (objects that shadow themselves: the arc, the wavy sheet).
 
 mod common;
 
@@ -73,6 +75,8 @@ fn validation_scenes_give_the_scalar_contributions() {
         ("arc.xml", vec![("capture_type", "confocal")]),
     ] {
         let scene = xml(name, &defines);
+        let self_shadowing = !SceneGeometry::build(&scene).blockers_everywhere_empty();
+        assert_eq!(self_shadowing, name == "arc.xml", "{name}: the route tested");
         let n = same_contributions(name, &scene, 0..256);
         assert!(n > 1000, "{name} {defines:?}: only {n} contributions");
     }

@@ -6,7 +6,7 @@
 //! Rays that start or end on a surface are shortened by `eps` (a fraction of the scene
 //! size) at both ends, so a surface does not shadow itself.
 
-use super::blockers::{BlockerSets, Blockers, Reach};
+use super::blockers::{BlockerSets, Blockers, Reach, Side};
 use super::packet::{self, TriPacket};
 use super::wall_plane::WallPlane;
 use crate::geometry::sampling::AreaDistribution;
@@ -300,12 +300,45 @@ impl SceneGeometry {
         self.occluded_by(a, b, self.blockers.of_segment(flat, a, b))
     }
 
+    /// For `L` segments `a[k] → b[k]` touching hidden triangles `flat[k]`, in lanes: the
+    /// blocker set each is tested against
+    /// ([`super::blockers::BlockerSets::side_lanes`]), and whether it is clear without a
+    /// ray (nothing can block on its side, and the wall does not separate its ends).
+    /// [`SceneGeometry::occluded_on_side`] of a lane's side is
+    /// [`SceneGeometry::occluded_touching`]'s answer, and `false` where it is clear.
+    #[inline(always)]
+    pub fn segment_sides<const L: usize>(
+        &self,
+        flat: [u32; L],
+        a: &[[f32; L]; 3],
+        b: &[[f32; L]; 3],
+    ) -> ([Side; L], [bool; L]) {
+        let sides = self.blockers.side_lanes(flat, a, b);
+        let separates = self.wall.separates_lanes(a, b);
+        let clear = std::array::from_fn(|k| sides[k] == Side::CLEAR && !separates[k]);
+        (sides, clear)
+    }
+
+    /// [`SceneGeometry::occluded_touching`] with the side known
+    /// ([`SceneGeometry::segment_sides`]).
+    #[inline]
+    pub fn occluded_on_side(&self, a: Vec3, b: Vec3, flat: u32, side: Side) -> bool {
+        self.occluded_by(a, b, self.blockers.on_side(flat, side))
+    }
+
     /// What hidden-geometry sampling can reach from hidden triangle `flat` on the side of
     /// `n_side` ([`super::blockers`]: nothing, from a planar or convex object).
     #[inline]
     pub fn reach_from(&self, flat: u32, n_side: Vec3) -> Reach {
         self.blockers
             .reach(flat, n_side.dot(self.hidden[flat as usize].n) >= 0.0)
+    }
+
+    /// Whether no hidden triangle can shadow a segment touching another, on either side
+    /// (a planar or convex object): every blocker set is empty.
+    #[inline]
+    pub fn blockers_everywhere_empty(&self) -> bool {
+        self.blockers.everywhere_empty()
     }
 
     /// How many hidden-triangle sides need no hidden-geometry shadow test (of `2 N`).

@@ -56,6 +56,20 @@ pub struct Reach {
     pub wall: bool,
 }
 
+/// Where a segment touching a hidden triangle lies ([`BlockerSets::side_lanes`]): in
+/// front of its plane, behind it, within `τ` of it (every triangle can block), or on a
+/// side where nothing can (either side with an empty set). A byte, so that lanes of it
+/// are selects.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Side(u8);
+
+impl Side {
+    pub const FRONT: Side = Side(0);
+    pub const BACK: Side = Side(1);
+    pub const IN_PLANE: Side = Side(2);
+    pub const CLEAR: Side = Side(3);
+}
+
 /// The sets `B(t, +)` and `B(t, −)` of every hidden triangle `t`, by flat index.
 #[derive(Clone, Debug)]
 pub struct BlockerSets {
@@ -66,6 +80,10 @@ pub struct BlockerSets {
     planes: Vec<(Vec3, Vec3)>,
     /// Heights above a plane below which a segment's far end counts as in the plane.
     tau: f32,
+    /// Per triangle and side, whether its set is [`Blockers::Nothing`] (for the lanes).
+    nothing: Vec<[bool; 2]>,
+    /// Whether every set is [`Blockers::Nothing`].
+    everywhere_empty: bool,
 }
 
 impl BlockerSets {
@@ -90,6 +108,8 @@ impl BlockerSets {
                 reach: vec![[everywhere; 2]; tris.len()],
                 planes,
                 tau,
+                nothing: vec![[false; 2]; tris.len()],
+                everywhere_empty: false,
             };
         }
         let mut reach = Vec::with_capacity(tris.len());
@@ -122,12 +142,19 @@ impl BlockerSets {
                 reach.push(sets.each_ref().map(|(_, r)| *r));
                 sets.map(|(b, _)| b)
             })
-            .collect();
+            .collect::<Vec<[Blockers; 2]>>();
+        let nothing = sides
+            .iter()
+            .map(|s| s.each_ref().map(|b| matches!(b, Blockers::Nothing)))
+            .collect::<Vec<[bool; 2]>>();
+        let everywhere_empty = nothing.iter().flatten().all(|&b| b);
         BlockerSets {
             sides,
             reach,
             planes,
             tau,
+            nothing,
+            everywhere_empty,
         }
     }
 
@@ -154,6 +181,55 @@ impl BlockerSets {
         } else {
             &Blockers::All
         }
+    }
+
+    /// [`BlockerSets::of_segment`] for `L` segments `a[k] → b[k]` touching triangles
+    /// `flat[k]`, as lanes of which set it picks ([`Side`]): the same height, the same
+    /// operations in the same order (`n · (a − o) + n · (b − o)`, each dot product
+    /// `x + y + z`), so that [`BlockerSets::on_side`] of a lane's answer is `of_segment`'s.
+    #[inline(always)]
+    pub fn side_lanes<const L: usize>(
+        &self,
+        flat: [u32; L],
+        a: &[[f32; L]; 3],
+        b: &[[f32; L]; 3],
+    ) -> [Side; L] {
+        let planes = flat.map(|t| self.planes[t as usize]);
+        let h: [f32; L] = std::array::from_fn(|k| {
+            let (n, o) = planes[k];
+            let up = |p: &[[f32; L]; 3]| {
+                n.x * (p[0][k] - o.x) + n.y * (p[1][k] - o.y) + n.z * (p[2][k] - o.z)
+            };
+            up(a) + up(b)
+        });
+        std::array::from_fn(|k| {
+            let [front_empty, back_empty] = self.nothing[flat[k] as usize];
+            let (front, back) = (h[k] > self.tau, h[k] < -self.tau);
+            let clear = (front && front_empty) || (!front && back && back_empty);
+            let code = if front {
+                0
+            } else if back {
+                1
+            } else {
+                2
+            };
+            Side(if clear { 3 } else { code })
+        })
+    }
+
+    /// The set [`BlockerSets::side_lanes`] picked for a segment touching `flat`.
+    #[inline]
+    pub fn on_side(&self, flat: u32, side: Side) -> &Blockers {
+        match side.0 {
+            0 | 1 => &self.sides[flat as usize][side.0 as usize],
+            2 => &Blockers::All,
+            _ => &Blockers::Nothing,
+        }
+    }
+
+    /// Whether every set is [`Blockers::Nothing`] (no hidden triangle shadows another).
+    pub fn everywhere_empty(&self) -> bool {
+        self.everywhere_empty
     }
 
     /// How many triangle sides need no hidden-geometry test at all (for the docs' figures).

@@ -66,6 +66,23 @@ impl WallPlane {
         );
         (sa > 0.0) != (sb > 0.0) && sa != 0.0 && sb != 0.0
     }
+
+    /// [`WallPlane::separates`] of `L` segments at once (the same operations per lane).
+    #[inline]
+    pub fn separates_lanes<const L: usize>(
+        &self,
+        a: &[[f32; L]; 3],
+        b: &[[f32; L]; 3],
+    ) -> [bool; L] {
+        let (n, c) = (self.normal, self.center);
+        let side = |p: &[[f32; L]; 3], k: usize| {
+            n.x * (p[0][k] - c.x) + n.y * (p[1][k] - c.y) + n.z * (p[2][k] - c.z)
+        };
+        std::array::from_fn(|k| {
+            let (sa, sb) = (side(a, k), side(b, k));
+            (sa > 0.0) != (sb > 0.0) && sa != 0.0 && sb != 0.0
+        })
+    }
 }
 
 #[cfg(test)]

@@ -19,16 +19,12 @@
 //! keeps the scalar [`super::mc3::sample`]: it replays the same contributions because
 //! these are the same bits (tested in `tests/mc3_lanes.rs`).
 
+use super::lanes::{albedos, at, dot, from_const, gather3, lanes, points, splat, F, LANES};
 use super::{mc3, spot_point, Contribution, MeasurementCtx, Sink};
 use crate::geometry::HiddenTri;
 use crate::rng::StreamSeeds;
 use glam::Vec3;
 use std::f32::consts::FRAC_1_PI;
-
-/// Samples evaluated together.
-pub const LANES: usize = 8;
-
-type F = [f32; LANES];
 
 /// Runs samples `range` of the measurement with stream seeds `seeds` into `sink`: what
 /// a loop of [`mc3::sample`] over the range gives, in the same order. A primal sink only
@@ -71,7 +67,7 @@ fn run_lanes<S: Sink>(ctx: &MeasurementCtx, seeds: &StreamSeeds, first: u32, sin
     // (measured on the arc), so each live lane runs the scalar test.
     let clear = if geom.blockers_everywhere_empty() {
         let x_l: [F; 3] = std::array::from_fn(|i| lanes(|k| spot[k][i]));
-        let x_s = ctx.x_s.to_array().map(|c| [c; LANES]);
+        let x_s = splat(ctx.x_s);
         Some((
             geom.segment_sides(ts.tri, &ev.x, &x_l),
             geom.segment_sides(ts.tri, &ev.x, &x_s),
@@ -80,7 +76,7 @@ fn run_lanes<S: Sink>(ctx: &MeasurementCtx, seeds: &StreamSeeds, first: u32, sin
         None
     };
     for k in (0..LANES).filter(|&k| ev.live[k]) {
-        let x = Vec3::new(ev.x[0][k], ev.x[1][k], ev.x[2][k]);
+        let x = at(&ev.x, k);
         let blocked = match &clear {
             Some(((side_l, clear_l), (side_s, clear_s))) => {
                 let on_side = |b: Vec3, side| geom.occluded_on_side(x, b, ts.tri[k], side);
@@ -113,32 +109,6 @@ struct Evaluated {
     opl: F,
 }
 
-/// A lane per sample of `f(k)`.
-#[inline(always)]
-fn lanes(f: impl FnMut(usize) -> f32) -> F {
-    std::array::from_fn(f)
-}
-
-/// `a · b` per lane: `a0 b0 + a1 b1 + a2 b2`, as [`crate::adjoint::dual::dot`].
-#[inline(always)]
-fn dot(a: &[F; 3], b: &[F; 3]) -> F {
-    lanes(|k| a[0][k] * b[0][k] + a[1][k] * b[1][k] + a[2][k] * b[2][k])
-}
-
-/// `c − v` per lane for a constant `c`.
-#[inline(always)]
-fn from_const(c: Vec3, v: &[F; 3]) -> [F; 3] {
-    let c = c.to_array();
-    std::array::from_fn(|i| lanes(|k| c[i] - v[i][k]))
-}
-
-/// A 3-vector field of the lanes' triangles.
-#[inline(always)]
-fn gather3(tris: &[&HiddenTri; LANES], f: impl Fn(&HiddenTri) -> Vec3) -> [F; 3] {
-    let v: [Vec3; LANES] = tris.map(&f);
-    std::array::from_fn(|i| lanes(|k| v[k][i]))
-}
-
 /// [`mc3::evaluate`] (through its `evaluate_on`, the normal and area read from the
 /// triangle) in lanes, the same operations in the same order; the spot point per lane.
 /// The tests are the scalar code's negations, so that a NaN passes where it passes there.
@@ -151,23 +121,17 @@ fn evaluate(
     prob: F,
     spot: &[Vec3; LANES],
 ) -> Evaluated {
-    let b0 = lanes(|k| 1.0 - b1[k] - b2[k]);
-    let (v0, v1, v2) = (
-        gather3(tris, |t| t.v[0]),
-        gather3(tris, |t| t.v[1]),
-        gather3(tris, |t| t.v[2]),
-    );
+    // `TriParams::point` and `albedo_at`.
+    let (x, b0) = points(tris, [b1, b2]);
+    let albedo = albedos(tris, [b1, b2], b0);
     let n = gather3(tris, |t| t.n);
-    // `TriParams::point`: v0 b0 + v1 b1 + v2 b2.
-    let x: [F; 3] =
-        std::array::from_fn(|i| lanes(|k| v0[i][k] * b0[k] + v1[i][k] * b1[k] + v2[i][k] * b2[k]));
     let x_l: [F; 3] = std::array::from_fn(|i| lanes(|k| spot[k][i]));
     let d_l: [F; 3] = std::array::from_fn(|i| lanes(|k| x_l[i][k] - x[i][k]));
     let d_s = from_const(ctx.x_s, &x);
     let (ll, ss) = (dot(&d_l, &d_l), dot(&d_s, &d_s));
     let (r_l, r_s) = (ll.map(f32::sqrt), ss.map(f32::sqrt));
     let (c_l, c_s) = (dot(&n, &d_l), dot(&n, &d_s));
-    let n_w = ctx.n_w.to_array().map(|c| [c; LANES]);
+    let n_w = splat(ctx.n_w);
     let (cw_l, cw_s) = (dot(&n_w, &d_l).map(|c| -c), dot(&n_w, &d_s).map(|c| -c));
     // The scalar code's constant OPL of the wall legs, per lane only for a finite spot.
     let legs: F = lanes(|k| ctx.opl_laser_leg(spot[k]) + ctx.opl_sensor_leg);
@@ -182,13 +146,7 @@ fn evaluate(
             g
         }
     });
-    let albedo = (
-        lanes(|k| tris[k].albedo[0]),
-        lanes(|k| tris[k].albedo[1]),
-        lanes(|k| tris[k].albedo[2]),
-    );
-    let f_x =
-        lanes(|k| (albedo.0[k] * b0[k] + albedo.1[k] * b1[k] + albedo.2[k] * b2[k]) * FRAC_1_PI);
+    let f_x = lanes(|k| albedo[k] * FRAC_1_PI);
     let area = lanes(|k| tris[k].area);
     let three_bounce = ctx.three_bounce_constant();
     let weight = lanes(|k| f_x[k] * geometry[k] * area[k] * (three_bounce / prob[k]));

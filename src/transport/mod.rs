@@ -14,9 +14,11 @@
 pub mod auto;
 pub mod budget;
 pub mod gate;
+pub(crate) mod lanes;
 pub mod mc3;
 pub mod mc3_lanes;
 pub mod path;
+pub mod path_lanes;
 pub(crate) mod path_step;
 pub mod render;
 pub mod tri3;
@@ -187,9 +189,14 @@ pub fn run_samples<S: Sink>(
     scratch: &mut path::PathScratch,
 ) {
     let seeds = StreamSeeds::new(seed, m);
-    if model == Model::Mc3 && !S::ADJOINT {
-        // The same contributions as `mc3::sample`, eight samples at a time.
-        return mc3_lanes::run(ctx, &seeds, range, sink);
+    // The primal passes draw eight samples at a time, the same contributions in the same
+    // order as the scalar routines, which the adjoint replays.
+    if !S::ADJOINT {
+        match model {
+            Model::Mc3 => return mc3_lanes::run(ctx, &seeds, range, sink),
+            Model::Path => return path_lanes::run(ctx, &seeds, range, scratch, sink),
+            Model::Tri3 | Model::Auto => {}
+        }
     }
     for i in range {
         let mut sampler = seeds.sampler(i);

@@ -329,6 +329,26 @@ pub fn sample<S: Sink>(
     scratch: &mut PathScratch,
     sink: &mut S,
 ) {
+    trace(ctx, sampler, scratch, sink, FirstStep::Draw);
+}
+
+/// How [`trace`] has its first continuation, from the sensor point.
+pub(crate) enum FirstStep {
+    /// Drawn here by [`step`] from the sample's first pair.
+    Draw,
+    /// Drawn already from the sample's first pair, as [`step`] would (`path_lanes` draws
+    /// eight at a time): `None` where the path ends there.
+    Drawn(Option<Step>),
+}
+
+/// [`sample`], the first step given or not.
+pub(crate) fn trace<S: Sink>(
+    ctx: &MeasurementCtx,
+    sampler: &mut Sampler,
+    scratch: &mut PathScratch,
+    sink: &mut S,
+    first: FirstStep,
+) {
     let geom = ctx.geom;
     let r = &ctx.scene.render;
     let tech = &r.techniques;
@@ -353,19 +373,25 @@ pub fn sample<S: Sink>(
     // spot is reached only by next-event estimation from y_j, j + 2 bounces. A vertex
     // that can close no kept path is not traced (a three-bounce render stops at y_1).
     let closing = if spot.is_point() { 2 } else { 1 };
+    let mut first = Some(first);
     for j in 1u32.. {
         if j + closing > max_bounces || !can_continue(ctx, &x) {
             break;
         }
+        // --- continuation: sample y_j by one of the two techniques -----------------
         // One stratified pair picks the technique and, rescaled, drives it.
-        let [u_pick, u_2] = sampler.next_2d();
+        let st = match first.take() {
+            Some(FirstStep::Drawn(st)) => {
+                sampler.reserve_2d();
+                st
+            }
+            _ => step(ctx, &x.s, x.on_wall(), sampler.next_2d()),
+        };
         // Set aside, read only where needed (a finite spot; Russian roulette).
         let u_spot = sampler.reserve_2d();
         let u_rr = sampler.reserve_2d();
         let techniques = technique_probabilities(tech, x.on_wall());
-
-        // --- continuation: sample y_j by one of the two techniques -----------------
-        let Some(st) = step(ctx, &x.s, x.on_wall(), [u_pick, u_2]) else {
+        let Some(st) = st else {
             break;
         };
         beta *= st.factor;

@@ -59,14 +59,15 @@ pub fn run<S: Sink>(
 fn first_steps_in_lanes(ctx: &MeasurementCtx) -> bool {
     let r = &ctx.scene.render;
     let tech = &r.techniques;
-    // The shortest path the first vertex can close: `trace`'s `closing`.
+    // The shortest path the first vertex can close, `trace`'s `closing`: `trace` draws
+    // the vertex only if `1 + closing` bounces are kept.
     let closing = if ctx.scene.laser.spot_radius > 0.0 {
         1
     } else {
         2
     };
     tech.hidden_geometry_sampling
-        && 1 + closing <= r.longest_bounces()
+        && closing < r.longest_bounces()
         && !ctx.geom.hidden.is_empty()
         && !hidden_geometry_distribution(ctx.geom, tech).is_empty()
 }

@@ -1,8 +1,7 @@
 //! The eight-wide primal passes hand the sink the contributions of the scalar sampling
-//! routines, bit for bit and in the same order: `transport::mc3_lanes` those of
-//! `mc3::sample`, `transport::path_lanes` (each path's first step in lanes) those of
-//! `path::sample`. The adjoint pass, which replays samples with the scalar routines,
-//! depends on it. Checked on the validation scenes (planar T letter, concave arc; single
+//! routines, bit for bit and in the same order, with the same derivatives in the
+//! adjoint pass: `transport::mc3_lanes` those of `mc3::sample`, `transport::path_lanes`
+//! (each path's first step in lanes) those of `path::sample`. Checked on the validation scenes (planar T letter, concave arc; single
 //! and confocal), the default scene, and builder scenes that reach the lane code's other
 //! branches: a finite laser spot, two-sided surfaces, more triangles than the counted
 //! pick handles, a Gaussian film window cut inside the returns, and a range that is not
@@ -25,22 +24,47 @@ use umbra::rng::StreamSeeds;
 use umbra::scene::Model;
 use umbra::scene::Scene;
 use umbra::transport::path::{self, PathScratch};
-use umbra::transport::{mc3, mc3_lanes, path_lanes, Contribution, MeasurementCtx, Sink};
+use umbra::transport::{
+    mc3, mc3_lanes, path_lanes, Contribution, HiddenGrad, MeasurementCtx, Sink,
+};
 
-/// Every contribution as bits: (OPL, weight, bounces).
+/// Every contribution as bits (OPL, weight, bounces), and in an adjoint pass
+/// (`ADJOINT`) its derivatives (each triangle's index, weight and OPL derivatives).
 #[derive(Default)]
-struct Record(Vec<(u32, u32, u32)>);
+struct Record<const ADJOINT: bool>(Vec<Vec<u32>>);
 
-impl Sink for Record {
+impl<const A: bool> Sink for Record<A> {
+    const ADJOINT: bool = A;
+
     fn add(&mut self, c: &Contribution) {
         self.0
-            .push((c.opl.to_bits(), c.weight.to_bits(), c.bounces));
+            .push(vec![c.opl.to_bits(), c.weight.to_bits(), c.bounces]);
+    }
+
+    fn add_grad(&mut self, c: &Contribution, grads: &[HiddenGrad]) {
+        self.add(c);
+        let last = self.0.last_mut().unwrap();
+        for g in grads {
+            last.push(g.flat);
+            last.extend(g.weight.iter().chain(&g.opl).map(|x| x.to_bits()));
+        }
     }
 }
 
-/// Scalar and lane passes of `model` over `range` of every measurement; returns the
-/// number of contributions compared.
+/// Scalar and lane passes of `model` over `range` of every measurement, primal and
+/// adjoint; returns the number of contributions compared (primal).
 fn same_contributions(
+    name: &str,
+    model: Model,
+    scene: &Scene,
+    range: std::ops::Range<u32>,
+) -> usize {
+    let n = compare::<false>(name, model, scene, range.clone());
+    assert_eq!(compare::<true>(name, model, scene, range), n, "{name}");
+    n
+}
+
+fn compare<const ADJOINT: bool>(
     name: &str,
     model: Model,
     scene: &Scene,
@@ -53,7 +77,8 @@ fn same_contributions(
     for m in 0..scene.num_measurements() {
         let ctx = MeasurementCtx::new(scene, &geom, &film, m);
         let seeds = StreamSeeds::new(11, m as u64);
-        let (mut scalar, mut lanes) = (Record::default(), Record::default());
+        let mut scalar = Record::<ADJOINT>::default();
+        let mut lanes = Record::<ADJOINT>::default();
         for i in range.clone() {
             let mut sampler = seeds.sampler(i);
             match model {
@@ -65,13 +90,17 @@ fn same_contributions(
             Model::Mc3 => mc3_lanes::run(&ctx, &seeds, range.clone(), &mut lanes),
             _ => path_lanes::run(&ctx, &seeds, range.clone(), &mut scratch, &mut lanes),
         }
+        let what = if ADJOINT { "adjoint" } else { "primal" };
         assert_eq!(
             scalar.0.len(),
             lanes.0.len(),
-            "{name} {model:?}, measurement {m}"
+            "{name} {model:?} {what}, measurement {m}"
         );
         for (j, (s, l)) in scalar.0.iter().zip(&lanes.0).enumerate() {
-            assert_eq!(s, l, "{name} {model:?}, measurement {m}, contribution {j}");
+            assert_eq!(
+                s, l,
+                "{name} {model:?} {what}, measurement {m}, contribution {j}"
+            );
         }
         total += scalar.0.len();
     }

@@ -201,13 +201,27 @@ pub fn sample<S: Sink>(ctx: &MeasurementCtx, sampler: &mut Sampler, sink: &mut S
     if weight <= 0.0 || blocked(x_l) || blocked(ctx.x_s) {
         return;
     }
+    emit(ctx, &ts, x_l, opl, weight, sink);
+}
+
+/// Emits the visible contribution `(opl, weight)` of sample `ts` (spot point `x_l`); an
+/// adjoint sink also gets its derivatives, by [`evaluate`] in dual numbers.
+#[inline]
+pub(crate) fn emit<S: Sink>(
+    ctx: &MeasurementCtx,
+    ts: &TriangleSample,
+    x_l: Vec3,
+    opl: f32,
+    weight: f32,
+    sink: &mut S,
+) {
     let c = Contribution {
         opl,
         weight,
         bounces: 3,
     };
     if S::ADJOINT {
-        let vars = TriParams::variables(tri);
+        let vars = TriParams::variables(&ctx.geom.hidden[ts.tri as usize]);
         if let Some((w, o)) = evaluate(ctx, &vars, ts.bary, ts.prob, x_l) {
             sink.add_grad(
                 &c,

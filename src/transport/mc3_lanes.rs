@@ -15,27 +15,29 @@
 //!
 //! Lane arithmetic is written as loops over `[f32; L]`, each `if` a select, so that the
 //! compiler turns it into vector instructions with the scalar code's rounding (IEEE
-//! `+ − × ÷ √` are exactly rounded either way; no fused multiply-adds). The adjoint pass
-//! keeps the scalar [`super::mc3::sample`]: it replays the same contributions because
-//! these are the same bits (tested in `tests/mc3_lanes.rs`).
+//! `+ − × ÷ √` are exactly rounded either way; no fused multiply-adds). Both passes run
+//! it: an adjoint sink gets each live lane's derivatives from [`super::mc3::evaluate`] in
+//! dual numbers ([`super::mc3::emit`], as the scalar [`super::mc3::sample`] gives them).
+//! The scalar routine stays the reference: the two give the same contributions and
+//! derivatives, bit for bit (`tests/lanes.rs`).
 
 use super::lanes::{albedos, at, dot, from_const, gather3, lanes, points, splat, F, LANES};
-use super::{mc3, spot_point, Contribution, MeasurementCtx, Sink};
+use super::{mc3, spot_point, MeasurementCtx, Sink};
+use crate::geometry::sampling::TriangleSample;
 use crate::geometry::HiddenTri;
 use crate::rng::StreamSeeds;
 use glam::Vec3;
 use std::f32::consts::FRAC_1_PI;
 
 /// Runs samples `range` of the measurement with stream seeds `seeds` into `sink`: what
-/// a loop of [`mc3::sample`] over the range gives, in the same order. A primal sink only
-/// (no derivatives).
+/// a loop of [`mc3::sample`] over the range gives, in the same order; an adjoint sink
+/// gets each contribution's derivatives as `mc3::sample` gives them ([`mc3::emit`]).
 pub fn run<S: Sink>(
     ctx: &MeasurementCtx,
     seeds: &StreamSeeds,
     range: std::ops::Range<u32>,
     sink: &mut S,
 ) {
-    debug_assert!(!S::ADJOINT);
     let mut first = range.start;
     while range.end - first >= LANES as u32 {
         run_lanes(ctx, seeds, first, sink);
@@ -91,11 +93,12 @@ fn run_lanes<S: Sink>(ctx: &MeasurementCtx, seeds: &StreamSeeds, first: u32, sin
         if blocked {
             continue;
         }
-        sink.add(&Contribution {
-            opl: ev.opl[k],
-            weight: ev.weight[k],
-            bounces: 3,
-        });
+        let ts = TriangleSample {
+            tri: ts.tri[k],
+            bary: [ts.b1[k], ts.b2[k]],
+            prob: ts.prob[k],
+        };
+        mc3::emit(ctx, &ts, spot[k], ev.opl[k], ev.weight[k], sink);
     }
 }
 

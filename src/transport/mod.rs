@@ -189,22 +189,12 @@ pub fn run_samples<S: Sink>(
     scratch: &mut path::PathScratch,
 ) {
     let seeds = StreamSeeds::new(seed, m);
-    // The primal passes draw eight samples at a time, the same contributions in the same
-    // order as the scalar routines, which the adjoint replays.
-    if !S::ADJOINT {
-        match model {
-            Model::Mc3 => return mc3_lanes::run(ctx, &seeds, range, sink),
-            Model::Path => return path_lanes::run(ctx, &seeds, range, scratch, sink),
-            Model::Tri3 | Model::Auto => {}
-        }
-    }
-    for i in range {
-        let mut sampler = seeds.sampler(i);
-        match model {
-            Model::Mc3 => mc3::sample(ctx, &mut sampler, sink),
-            Model::Path => path::sample(ctx, &mut sampler, scratch, sink),
-            Model::Tri3 | Model::Auto => unreachable!("not a Monte Carlo model"),
-        }
+    // Eight samples at a time: the scalar routines' contributions (and derivatives), in
+    // the same order (`tests/lanes.rs`).
+    match model {
+        Model::Mc3 => mc3_lanes::run(ctx, &seeds, range, sink),
+        Model::Path => path_lanes::run(ctx, &seeds, range, scratch, sink),
+        Model::Tri3 | Model::Auto => unreachable!("not a Monte Carlo model"),
     }
 }
 

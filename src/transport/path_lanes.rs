@@ -14,8 +14,9 @@
 //! drawn by `trace` itself.
 //!
 //! So the contributions are the scalar pass's, bit for bit and in the same order
-//! (`tests/lanes.rs`), and the adjoint pass, which replays paths with the scalar
-//! [`super::path::sample`], follows the paths this pass rendered.
+//! (`tests/lanes.rs`). The adjoint pass runs this pass too: its replay starts from the
+//! drawn [`Step`] (an area-sampled point keeps its barycentrics), as it starts from the
+//! step `trace` draws, so the derivatives are the scalar [`super::path::sample`]'s.
 
 use super::lanes::{albedos, at, dot, gather3, lanes, minus_const, points, splat, F, LANES};
 use super::path::{self, FirstStep, PathScratch};
@@ -29,7 +30,8 @@ use crate::rng::StreamSeeds;
 use std::f32::consts::FRAC_1_PI;
 
 /// Runs samples `range` of the measurement with stream seeds `seeds` into `sink`: what
-/// a loop of [`path::sample`] over the range gives, in the same order. A primal sink only.
+/// a loop of [`path::sample`] over the range gives, in the same order (derivatives too,
+/// for an adjoint sink).
 pub fn run<S: Sink>(
     ctx: &MeasurementCtx,
     seeds: &StreamSeeds,
@@ -37,7 +39,6 @@ pub fn run<S: Sink>(
     scratch: &mut PathScratch,
     sink: &mut S,
 ) {
-    debug_assert!(!S::ADJOINT);
     let mut first = range.start;
     if first_steps_in_lanes(ctx) {
         while range.end - first >= LANES as u32 {

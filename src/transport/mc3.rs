@@ -13,6 +13,9 @@
 //!
 //! Supports: all capture types, one- and two-sided surfaces, per-vertex albedo.
 //! Does not: interreflections (see `path`), or paths through the wall.
+//!
+//! Renders and gradients run it eight samples at a time ([`super::mc3_lanes`], the same
+//! contributions and derivatives bit for bit); [`sample`] is the one-sample reference.
 
 use super::{sample_spot, Contribution, HiddenGrad, MeasurementCtx, Sink};
 use crate::adjoint::dual::{self, Dual, Float, Real, V3};

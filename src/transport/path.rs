@@ -39,6 +39,9 @@
 //! together; not laser sampling with a point spot). Does not: non-Lambertian BRDFs,
 //! participating media, a non-planar wall.
 //!
+//! Renders and gradients draw each path's first step eight paths at a time
+//! ([`super::path_lanes`], the same steps bit for bit) and go on with [`trace`].
+//!
 //! **Adjoint (path replay).** The weights are written once over [`Real`]
 //! (`continuation` with its mixture density, `Spot`'s NEE and emission weights,
 //! `survival`); an adjoint sink makes the same loop carry, next to the `f32` state, a

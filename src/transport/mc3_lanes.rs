@@ -17,7 +17,7 @@
 //! compiler turns it into vector instructions with the scalar code's rounding (IEEE
 //! `+ − × ÷ √` are exactly rounded either way; no fused multiply-adds). Both passes run
 //! it: an adjoint sink gets each live lane's derivatives from [`super::mc3::evaluate`] in
-//! dual numbers ([`super::mc3::emit`], as the scalar [`super::mc3::sample`] gives them).
+//! dual numbers (`mc3::emit`, as the scalar [`super::mc3::sample`] gives them).
 //! The scalar routine stays the reference: the two give the same contributions and
 //! derivatives, bit for bit (`tests/lanes.rs`).
 
@@ -31,7 +31,7 @@ use std::f32::consts::FRAC_1_PI;
 
 /// Runs samples `range` of the measurement with stream seeds `seeds` into `sink`: what
 /// a loop of [`mc3::sample`] over the range gives, in the same order; an adjoint sink
-/// gets each contribution's derivatives as `mc3::sample` gives them ([`mc3::emit`]).
+/// gets each contribution's derivatives as `mc3::sample` gives them (`mc3::emit`).
 pub fn run<S: Sink>(
     ctx: &MeasurementCtx,
     seeds: &StreamSeeds,

@@ -40,7 +40,7 @@
 //! participating media, a non-planar wall.
 //!
 //! Renders and gradients draw each path's first step eight paths at a time
-//! ([`super::path_lanes`], the same steps bit for bit) and go on with [`trace`].
+//! ([`super::path_lanes`], the same steps bit for bit) and go on with `trace`.
 //!
 //! **Adjoint (path replay).** The weights are written once over [`Real`]
 //! (`continuation` with its mixture density, `Spot`'s NEE and emission weights,

@@ -7,15 +7,15 @@
 //! pick and the point on the triangle, the direction and its two cosines, the shadow
 //! ray, the throughput factor `f(x_s) cos θ_x cos θ_y / (d² q(y))`. For eight consecutive
 //! samples this module does it in lanes, operation for operation as
-//! [`super::path_step::step`] does it, and hands each path, in sample order, to
-//! [`super::path::trace`] with its first step already drawn; `trace` goes on from there
+//! `path_step::step` does it, and hands each path, in sample order, to
+//! `path::trace` with its first step already drawn; `trace` goes on from there
 //! (next-event estimation to the laser spot, Russian roulette, the further bounces) with
 //! the scalar code. A lane that BSDF sampling draws, or that picks a wall triangle, is
 //! drawn by `trace` itself.
 //!
 //! So the contributions are the scalar pass's, bit for bit and in the same order
 //! (`tests/lanes.rs`). The adjoint pass runs this pass too: its replay starts from the
-//! drawn [`Step`] (an area-sampled point keeps its barycentrics), as it starts from the
+//! drawn `Step` (an area-sampled point keeps its barycentrics), as it starts from the
 //! step `trace` draws, so the derivatives are the scalar [`super::path::sample`]'s.
 
 use super::lanes::{albedos, at, dot, gather3, lanes, minus_const, points, splat, F, LANES};

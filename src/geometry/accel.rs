@@ -8,6 +8,7 @@
 
 use super::blockers::{BlockerSets, Blockers, Reach, Side};
 use super::packet::{self, TriPacket};
+use super::point_shadow;
 use super::wall_plane::WallPlane;
 use crate::geometry::sampling::AreaDistribution;
 use crate::scene::Scene;
@@ -344,6 +345,24 @@ impl SceneGeometry {
     /// How many hidden-triangle sides need no hidden-geometry shadow test (of `2 N`).
     pub fn unblockable_sides(&self) -> usize {
         self.blockers.empty_sides()
+    }
+
+    /// Bit `t` set: no hidden triangle can shadow a segment from hidden triangle `t` to
+    /// the point `l` ([`super::point_shadow`]; empty for scenes whose blocker sets
+    /// already are, or with more than 64 hidden triangles).
+    pub fn clear_toward(&self, l: Vec3) -> u64 {
+        if self.blockers.everywhere_empty() || self.hidden.len() > point_shadow::MAX_TRIANGLES {
+            return 0;
+        }
+        let tris: Vec<[Vec3; 3]> = self.hidden.iter().map(|t| t.v).collect();
+        point_shadow::clear_toward(&tris, l, 0.25 * self.eps)
+    }
+
+    /// [`SceneGeometry::occluded_touching`] for a segment that no hidden triangle can
+    /// shadow ([`SceneGeometry::clear_toward`]): the wall only.
+    #[inline]
+    pub fn occluded_by_wall(&self, a: Vec3, b: Vec3) -> bool {
+        self.occluded_by(a, b, &Blockers::Nothing)
     }
 
     #[inline]

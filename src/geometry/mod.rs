@@ -7,6 +7,7 @@ pub mod blockers;
 pub mod mesh;
 pub mod overlap;
 pub mod packet;
+pub mod point_shadow;
 pub mod ray_log;
 pub mod sampling;
 pub mod shapes;

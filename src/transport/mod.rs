@@ -115,6 +115,9 @@ pub struct MeasurementCtx<'a> {
     /// their visibility rays.
     pub opl_min: f32,
     pub opl_max: f32,
+    /// Bit `t` set: next-event estimation from hidden triangle `t` to the point spot
+    /// `x_l` needs no hidden-geometry shadow test ([`SceneGeometry::clear_toward`]).
+    pub spot_clear: u64,
 }
 
 impl<'a> MeasurementCtx<'a> {
@@ -150,6 +153,24 @@ impl<'a> MeasurementCtx<'a> {
             },
             opl_min: (film.start - margin) as f32,
             opl_max: (film.end() + margin) as f32,
+            spot_clear: if scene.laser.spot_radius == 0.0 && scene.render.techniques.laser_sampling
+            {
+                geom.clear_toward(x_l)
+            } else {
+                0
+            },
+        }
+    }
+
+    /// Whether the segment from `y`, on hidden triangle `flat`, to the spot point `x_l`
+    /// is blocked: [`SceneGeometry::occluded_touching`]'s answer, with the wall alone
+    /// tested where [`MeasurementCtx::spot_clear`] says no hidden triangle can block.
+    #[inline]
+    pub fn occluded_toward_spot(&self, y: Vec3, x_l: Vec3, flat: u32) -> bool {
+        if x_l == self.x_l && flat < 64 && (self.spot_clear >> flat) & 1 == 1 {
+            self.geom.occluded_by_wall(y, x_l)
+        } else {
+            self.geom.occluded_touching(y, x_l, flat)
         }
     }
 

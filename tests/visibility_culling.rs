@@ -253,3 +253,70 @@ fn dead_end_sides_reach_nothing() {
     let toward_wall = if n.dot(t.wall_normal) < 0.0 { n } else { -n };
     assert!(t.reach_from(0, toward_wall).wall && !t.reach_from(0, -toward_wall).wall);
 }
+
+/// Next-event culling toward a point spot (`geometry::point_shadow`): from a triangle that
+/// `clear_toward(l)` clears, no segment to `l` is blocked by a hidden triangle, by the
+/// `f64` reference and by the full test, for spots across the wall; and on shapes that do
+/// shadow themselves some triangles stay uncleared.
+#[test]
+fn triangles_cleared_toward_a_spot_see_it() {
+    let cases: Vec<(&str, Scene)> = vec![
+        ("concave arc arc.xml", xml("arc.xml")),
+        (
+            "wavy sheet, 50 triangles",
+            with_mesh(wavy_sheet(Vec3::new(0.0, 0.0, 0.6), 0.5, 5, 0.05, 0.3)),
+        ),
+    ];
+    for (name, scene) in cases {
+        let geom = SceneGeometry::build(&scene);
+        let w = &scene.wall;
+        let (mut cleared, mut kept, mut segments) = (0u32, 0u32, 0u32);
+        for (i, (fu, fv)) in [
+            (0.5, 0.5),
+            (0.1, 0.1),
+            (0.9, 0.2),
+            (0.3, 0.85),
+            (0.95, 0.95),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let l = w.center + (fu - 0.5) * w.axis_u + (fv - 0.5) * w.axis_v;
+            let clear = geom.clear_toward(l);
+            for t in 0..geom.hidden.len() as u32 {
+                if (clear >> t) & 1 == 0 {
+                    kept += 1;
+                    continue;
+                }
+                cleared += 1;
+                let mut s = Sampler::independent(17, i as u64, t);
+                for _ in 0..400 {
+                    let [mut b1, mut b2] = s.next_2d();
+                    if b1 + b2 > 1.0 {
+                        (b1, b2) = (1.0 - b1, 1.0 - b2);
+                    }
+                    let a = geom.hidden[t as usize].point([b1, b2]);
+                    segments += 1;
+                    assert!(
+                        !reference(&geom, (a, t), (l, None)),
+                        "{name}: tri {t}, spot {l}"
+                    );
+                    assert!(
+                        !geom.occluded_touching(a, l, t),
+                        "{name}: tri {t}, spot {l}"
+                    );
+                }
+            }
+        }
+        eprintln!(
+            "{name}: {cleared} triangle-spot pairs cleared, {kept} kept, {segments} segments"
+        );
+        assert!(cleared > 0, "{name}: nothing cleared");
+        if name.starts_with("wavy") {
+            assert!(
+                kept > 0,
+                "{name}: a self-shadowing sheet cleared everywhere"
+            );
+        }
+    }
+}

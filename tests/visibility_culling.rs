@@ -320,3 +320,52 @@ fn triangles_cleared_toward_a_spot_see_it() {
         }
     }
 }
+
+/// `MeasurementCtx::occluded_touching`, which tests only the wall where a segment from a
+/// cleared triangle ends at the spot centre or the sensor point, answers as the full
+/// `SceneGeometry::occluded_touching` on the same segments, in either order, for single
+/// and confocal captures of the arc; and it does clear most of them.
+#[test]
+fn culled_segments_to_the_measurement_points_answer_as_the_full_test() {
+    use umbra::film::Film;
+    use umbra::scene::CaptureType;
+    use umbra::transport::MeasurementCtx;
+    for capture in [CaptureType::Single, CaptureType::Confocal] {
+        let mut scene = xml("arc.xml");
+        scene.capture = capture;
+        let geom = SceneGeometry::build(&scene);
+        let film = Film::new(&scene.film);
+        let (mut segments, mut cleared) = (0u32, 0u32);
+        for m in (0..scene.num_measurements()).step_by(37) {
+            let ctx = MeasurementCtx::new(&scene, &geom, &film, m);
+            for end in [ctx.x_l, ctx.x_s] {
+                let clear = geom.clear_toward(end);
+                for t in 0..geom.hidden.len() as u32 {
+                    cleared += ((clear >> t) & 1) as u32;
+                    let mut s = Sampler::independent(5, m as u64, t);
+                    for _ in 0..50 {
+                        let [mut b1, mut b2] = s.next_2d();
+                        if b1 + b2 > 1.0 {
+                            (b1, b2) = (1.0 - b1, 1.0 - b2);
+                        }
+                        let a = geom.hidden[t as usize].point([b1, b2]);
+                        segments += 1;
+                        assert_eq!(
+                            ctx.occluded_touching(a, end, t),
+                            geom.occluded_touching(a, end, t),
+                            "{capture:?}: measurement {m}, tri {t}, end {end}"
+                        );
+                        assert_eq!(
+                            ctx.occluded_touching(end, a, t),
+                            geom.occluded_touching(end, a, t),
+                            "{capture:?}: measurement {m}, tri {t}, end {end} (reversed)"
+                        );
+                    }
+                }
+            }
+        }
+        let pairs = segments / 50;
+        eprintln!("{capture:?}: {cleared} of {pairs} triangle-point pairs cleared");
+        assert!(2 * cleared > pairs, "{capture:?}: few pairs cleared");
+    }
+}

@@ -8,7 +8,7 @@
 
 use super::blockers::{BlockerSets, Blockers, Reach, Side};
 use super::packet::{self, TriPacket};
-use super::point_shadow;
+use super::point_shadow::{self, PointShadow};
 use super::wall_plane::WallPlane;
 use crate::geometry::sampling::AreaDistribution;
 use crate::scene::Scene;
@@ -116,6 +116,10 @@ pub struct SceneGeometry {
     /// Self-intersection offset (m).
     pub eps: f32,
     pub wall_normal: Vec3,
+    /// Which hidden triangles nothing shadows toward a point, by point asked for
+    /// ([`SceneGeometry::clear_toward`]); `None` where the blocker sets are all empty or
+    /// there are more than [`point_shadow::MAX_TRIANGLES`] hidden triangles.
+    point_shadow: Option<PointShadow>,
 }
 
 impl SceneGeometry {
@@ -185,6 +189,12 @@ impl SceneGeometry {
             }
         };
         let wall_normal = w.normal();
+        let point_shadow = (!blockers.everywhere_empty()
+            && hidden.len() <= point_shadow::MAX_TRIANGLES)
+            .then(|| {
+                let tris: Vec<[Vec3; 3]> = hidden.iter().map(|t| t.v).collect();
+                PointShadow::new(&tris, 0.25 * eps)
+            });
         SceneGeometry {
             accel,
             wall: WallPlane::new(w.center, w.axis_u, w.axis_v),
@@ -196,6 +206,7 @@ impl SceneGeometry {
             wall_tris,
             eps,
             wall_normal,
+            point_shadow,
         }
     }
 
@@ -351,11 +362,9 @@ impl SceneGeometry {
     /// the point `l` ([`super::point_shadow`]; empty for scenes whose blocker sets
     /// already are, or with more than 64 hidden triangles).
     pub fn clear_toward(&self, l: Vec3) -> u64 {
-        if self.blockers.everywhere_empty() || self.hidden.len() > point_shadow::MAX_TRIANGLES {
-            return 0;
-        }
-        let tris: Vec<[Vec3; 3]> = self.hidden.iter().map(|t| t.v).collect();
-        point_shadow::clear_toward(&tris, l, 0.25 * self.eps)
+        self.point_shadow
+            .as_ref()
+            .map_or(0, |ps| ps.clear_toward(l))
     }
 
     /// [`SceneGeometry::occluded_touching`] for a segment that no hidden triangle can

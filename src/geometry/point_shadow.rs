@@ -19,6 +19,8 @@
 //! the answer is conservative: a triangle it cannot clear is traced as before.
 
 use glam::{DVec3, Vec3};
+use std::collections::HashMap;
+use std::sync::Mutex;
 
 /// Most triangles the bit set holds.
 pub const MAX_TRIANGLES: usize = 64;
@@ -27,70 +29,145 @@ pub const MAX_TRIANGLES: usize = 64;
 /// triangle `t` to `l` (`tris[t]` its corners, `tau` the coplanarity tolerance, m). Empty
 /// for more than [`MAX_TRIANGLES`] triangles.
 pub fn clear_toward(tris: &[[Vec3; 3]], l: Vec3, tau: f32) -> u64 {
-    if tris.len() > MAX_TRIANGLES {
-        return 0;
-    }
-    let tau = tau as f64;
-    let l = l.as_dvec3();
-    let corners: Vec<[DVec3; 3]> = tris.iter().map(|t| t.map(|c| c.as_dvec3())).collect();
-    let mut clear = 0u64;
-    for (t, tc) in corners.iter().enumerate() {
-        let others = corners.iter().enumerate().filter(|&(u, _)| u != t);
-        if sees(tc, l, tau) && others.clone().all(|(_, uc)| separated(tc, l, uc, tau)) {
-            clear |= 1 << t;
-        }
-    }
-    clear
+    PointShadow::new(tris, tau).clear_toward(l)
 }
 
-/// Whether `l` lies clearly off `t`'s plane (a segment in the plane is left to the full
-/// test, as [`super::blockers::BlockerSets::of_segment`] leaves it).
-fn sees(t: &[DVec3; 3], l: DVec3, tau: f64) -> bool {
-    let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero();
-    let h = n.dot(l - t[0]);
-    n != DVec3::ZERO && h.abs() > 4.0 * tau
+/// The triangles' corners and unit normals in `f64`, worked out once, and the bit sets
+/// already asked for, by point: a single capture asks for the same spot in every
+/// measurement, and a gradient's forward and adjoint passes ask twice.
+pub struct PointShadow {
+    tris: Vec<Tri>,
+    tau: f64,
+    cache: Mutex<HashMap<[u32; 3], u64>>,
 }
 
-/// Whether one of the planes of the module docs separates triangle `u` from
-/// `conv(t, l)`.
-fn separated(t: &[DVec3; 3], l: DVec3, u: &[DVec3; 3], tau: f64) -> bool {
-    // t's plane, oriented towards l.
-    let n_t = (t[1] - t[0]).cross(t[2] - t[0]).normalize();
-    let s = n_t.dot(l - t[0]).signum();
-    if u.iter().all(|&c| s * n_t.dot(c - t[0]) <= tau) {
-        return true;
-    }
-    // The side faces through edge (i, j) and l, oriented towards t's third corner k.
-    for (i, j, k) in [(0, 1, 2), (1, 2, 0), (2, 0, 1)] {
-        let m = (t[j] - t[i]).cross(l - t[i]).normalize_or_zero();
-        if m == DVec3::ZERO {
-            continue;
+struct Tri {
+    c: [DVec3; 3],
+    /// Unit normal, zero for a degenerate triangle.
+    n: DVec3,
+}
+
+impl PointShadow {
+    /// No triangles kept past [`MAX_TRIANGLES`]: every bit set is then empty.
+    pub fn new(tris: &[[Vec3; 3]], tau: f32) -> Self {
+        let tris = if tris.len() > MAX_TRIANGLES {
+            Vec::new()
+        } else {
+            tris.iter()
+                .map(|t| {
+                    let c = t.map(|c| c.as_dvec3());
+                    let n = (c[1] - c[0]).cross(c[2] - c[0]).normalize_or_zero();
+                    Tri { c, n }
+                })
+                .collect()
+        };
+        PointShadow {
+            tris,
+            tau: tau as f64,
+            cache: Mutex::new(HashMap::new()),
         }
-        let m = m * m.dot(t[k] - t[i]).signum();
-        if u.iter().all(|&c| m.dot(c - t[i]) < -tau) {
+    }
+
+    /// [`clear_toward`] for these triangles, from the cache where `l` was asked before.
+    pub fn clear_toward(&self, l: Vec3) -> u64 {
+        let key = l.to_array().map(f32::to_bits);
+        if let Some(bits) = self.cache.lock().map_or(None, |c| c.get(&key).copied()) {
+            return bits;
+        }
+        let bits = self.work_out(l.as_dvec3());
+        if let Ok(mut c) = self.cache.lock() {
+            c.insert(key, bits);
+        }
+        bits
+    }
+
+    fn work_out(&self, l: DVec3) -> u64 {
+        let mut clear = 0u64;
+        for (t, tt) in self.tris.iter().enumerate() {
+            let Some(toward) = Toward::new(tt, l, self.tau) else {
+                continue;
+            };
+            let mut others = self.tris.iter().enumerate().filter(|&(u, _)| u != t);
+            if others.all(|(_, u)| toward.separates(u)) {
+                clear |= 1 << t;
+            }
+        }
+        clear
+    }
+}
+
+/// `conv(t, l)`'s planes for one triangle `t` and point `l`: `t`'s plane and the side
+/// faces, oriented as the module docs say.
+struct Toward<'a> {
+    t: &'a Tri,
+    l: DVec3,
+    tau: f64,
+    /// `t`'s normal towards `l`.
+    n_t: DVec3,
+    /// The side faces through edge `(i, i + 1)` and `l`, towards `t`'s third corner;
+    /// `None` where `l` is on the edge's line.
+    sides: [Option<DVec3>; 3],
+    /// The longest distance from `t`'s corners to `l`.
+    d: f64,
+}
+
+impl<'a> Toward<'a> {
+    /// `None` unless `l` lies clearly off `t`'s plane (a segment in the plane is left to
+    /// the full test, as [`super::blockers::BlockerSets::of_segment`] leaves it).
+    fn new(t: &'a Tri, l: DVec3, tau: f64) -> Option<Self> {
+        let c = &t.c;
+        let h = t.n.dot(l - c[0]);
+        if t.n == DVec3::ZERO || h.abs() <= 4.0 * tau {
+            return None;
+        }
+        let sides = [(0, 1, 2), (1, 2, 0), (2, 0, 1)].map(|(i, j, k)| {
+            let m = (c[j] - c[i]).cross(l - c[i]).normalize_or_zero();
+            (m != DVec3::ZERO).then(|| m * m.dot(c[k] - c[i]).signum())
+        });
+        Some(Toward {
+            t,
+            l,
+            tau,
+            n_t: t.n * h.signum(),
+            sides,
+            d: c.iter().map(|&p| (l - p).length()).fold(0.0, f64::max),
+        })
+    }
+
+    /// Whether one of the planes of the module docs separates triangle `u` from
+    /// `conv(t, l)`.
+    fn separates(&self, u: &Tri) -> bool {
+        let (t, l, tau) = (&self.t.c, self.l, self.tau);
+        // t's plane.
+        if u.c.iter().all(|&p| self.n_t.dot(p - t[0]) <= tau) {
             return true;
         }
+        // The side faces: u more than tau outside one.
+        for (i, m) in self.sides.iter().enumerate() {
+            if let Some(m) = m {
+                if u.c.iter().all(|&p| m.dot(p - t[i]) < -tau) {
+                    return true;
+                }
+            }
+        }
+        // u's plane, oriented towards l.
+        if u.n == DVec3::ZERO {
+            return false;
+        }
+        let n_u = u.n * u.n.dot(l - u.c[0]).signum();
+        let g = |p: DVec3| n_u.dot(p - u.c[0]);
+        let (g_l, g_t) = (g(l), t.map(g));
+        let lowest = g_t.iter().copied().fold(f64::INFINITY, f64::min);
+        if lowest > tau && g_l > tau {
+            return true;
+        }
+        let highest = g_t.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        if highest < -tau && g_l > tau {
+            // l in front, t behind: u may lie between them.
+            return false;
+        }
+        lowest >= -tau && g_l > 0.5 * self.d
     }
-    // u's plane, oriented towards l.
-    let n_u = (u[1] - u[0]).cross(u[2] - u[0]).normalize_or_zero();
-    if n_u == DVec3::ZERO {
-        return false;
-    }
-    let g = |p: DVec3| n_u.dot(p - u[0]);
-    let n_u = n_u * g(l).signum();
-    let g = |p: DVec3| n_u.dot(p - u[0]);
-    let (g_l, g_t) = (g(l), t.map(g));
-    let lowest = g_t.iter().copied().fold(f64::INFINITY, f64::min);
-    if lowest > tau && g_l > tau {
-        return true;
-    }
-    let highest = g_t.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    if highest < -tau && g_l > tau {
-        // l in front, t behind: u may lie between them.
-        return false;
-    }
-    let d = t.iter().map(|&c| (l - c).length()).fold(0.0, f64::max);
-    lowest >= -tau && g_l > 0.5 * d
 }
 
 #[cfg(test)]

@@ -200,7 +200,7 @@ pub fn sample<S: Sink>(ctx: &MeasurementCtx, sampler: &mut Sampler, sink: &mut S
         return;
     };
     let x = tri.point(ts.bary);
-    let blocked = |b: Vec3| geom.occluded_touching(x, b, ts.tri);
+    let blocked = |b: Vec3| ctx.occluded_touching(x, b, ts.tri);
     if weight <= 0.0 || blocked(x_l) || blocked(ctx.x_s) {
         return;
     }

@@ -86,7 +86,7 @@ fn run_lanes<S: Sink>(ctx: &MeasurementCtx, seeds: &StreamSeeds, first: u32, sin
                     || (!clear_s[k] && on_side(ctx.x_s, side_s[k]))
             }
             None => {
-                let touching = |b: Vec3| geom.occluded_touching(x, b, ts.tri[k]);
+                let touching = |b: Vec3| ctx.occluded_touching(x, b, ts.tri[k]);
                 touching(spot[k]) || touching(ctx.x_s)
             }
         };

@@ -30,11 +30,12 @@ pub mod tri3_physics;
 pub use render::{render, Progress, RenderOptions, Renderer, Transient};
 
 use crate::film::Film;
-use crate::geometry::SceneGeometry;
+use crate::geometry::{point_shadow, SceneGeometry};
 use crate::rng::{Reserved, Sampler, StreamSeeds};
 use crate::scene::{Model, Scene};
 use glam::Vec3;
 use std::f32::consts::FRAC_1_PI;
+use std::sync::OnceLock;
 
 /// Samples per block of work (the unit of parallelism and of progress).
 pub const BLOCK_SPP: u32 = 1024;
@@ -115,9 +116,12 @@ pub struct MeasurementCtx<'a> {
     /// their visibility rays.
     pub opl_min: f32,
     pub opl_max: f32,
-    /// Bit `t` set: next-event estimation from hidden triangle `t` to the point spot
-    /// `x_l` needs no hidden-geometry shadow test ([`SceneGeometry::clear_toward`]).
-    pub spot_clear: u64,
+    /// Bit `t` set: a segment from hidden triangle `t` to the spot centre `x_l` needs no
+    /// hidden-geometry shadow test ([`SceneGeometry::clear_toward`]); worked out on first
+    /// use, so models that never ask (tri3) do not pay for it.
+    spot_clear: OnceLock<u64>,
+    /// The same toward the sensor point `x_s`.
+    sensor_clear: OnceLock<u64>,
 }
 
 impl<'a> MeasurementCtx<'a> {
@@ -153,25 +157,34 @@ impl<'a> MeasurementCtx<'a> {
             },
             opl_min: (film.start - margin) as f32,
             opl_max: (film.end() + margin) as f32,
-            spot_clear: if scene.laser.spot_radius == 0.0 && scene.render.techniques.laser_sampling
-            {
-                geom.clear_toward(x_l)
-            } else {
-                0
-            },
+            spot_clear: OnceLock::new(),
+            sensor_clear: OnceLock::new(),
         }
     }
 
-    /// Whether the segment from `y`, on hidden triangle `flat`, to the spot point `x_l`
-    /// is blocked: [`SceneGeometry::occluded_touching`]'s answer, with the wall alone
-    /// tested where [`MeasurementCtx::spot_clear`] says no hidden triangle can block.
+    /// Whether the segment `a`–`b`, one end on hidden triangle `flat`, is blocked:
+    /// [`SceneGeometry::occluded_touching`]'s answer. Where the other end is the spot
+    /// centre `x_l` or the sensor point `x_s` and no hidden triangle can shadow `flat`
+    /// toward it ([`SceneGeometry::clear_toward`], one bit set per measurement), only the
+    /// wall is tested: the same answer without the hidden-geometry query.
     #[inline]
-    pub fn occluded_toward_spot(&self, y: Vec3, x_l: Vec3, flat: u32) -> bool {
-        if x_l == self.x_l && flat < 64 && (self.spot_clear >> flat) & 1 == 1 {
-            self.geom.occluded_by_wall(y, x_l)
-        } else {
-            self.geom.occluded_touching(y, x_l, flat)
+    pub fn occluded_touching(&self, a: Vec3, b: Vec3, flat: u32) -> bool {
+        if (flat as usize) < point_shadow::MAX_TRIANGLES {
+            let clear = |end: Vec3| {
+                let mask = if end == self.x_l {
+                    &self.spot_clear
+                } else if end == self.x_s {
+                    &self.sensor_clear
+                } else {
+                    return false;
+                };
+                (*mask.get_or_init(|| self.geom.clear_toward(end)) >> flat) & 1 == 1
+            };
+            if clear(b) || clear(a) {
+                return self.geom.occluded_by_wall(a, b);
+            }
         }
+        self.geom.occluded_touching(a, b, flat)
     }
 
     /// `P (ρ_w/π)²`: the constant factor of every three-bounce contribution (the laser's

@@ -444,7 +444,7 @@ pub(crate) fn trace<S: Sink>(
                 if let Some((weight, r_l)) = spot.nee(&y.s, beta, x_l, n_w, from_y, p_hg_l) {
                     let total_opl = opl + r_l + ctx.opl_laser_leg(x_l);
                     let in_film = total_opl >= ctx.opl_min && total_opl < ctx.opl_max;
-                    if in_film && weight > 0.0 && !ctx.occluded_toward_spot(y.p(), x_l, y.flat) {
+                    if in_film && weight > 0.0 && !ctx.occluded_touching(y.p(), x_l, y.flat) {
                         let grad = replay.as_mut().and_then(|rp| {
                             rp.catch_up(ctx, &mut scratch.deferred);
                             let (w, r_d) = spot.nee(&rp.x, rp.beta, x_l, n_w, from_y, p_hg_l)?;

@@ -153,7 +153,7 @@ fn first_steps(ctx: &MeasurementCtx, seeds: &StreamSeeds, first: u32) -> [FirstS
             Some((side, clear)) => {
                 !clear[k] && geom.occluded_on_side(x_p, at(&y, k), flat[k], side[k])
             }
-            None => geom.occluded_touching(x_p, at(&y, k), flat[k]),
+            None => ctx.occluded_touching(x_p, at(&y, k), flat[k]),
         };
         if blocked {
             return FirstStep::Drawn(None);

@@ -266,7 +266,7 @@ pub(crate) fn step(
         let blocked = if flat == u32::MAX {
             geom.occluded(x_p, y)
         } else {
-            geom.occluded_touching(x_p, y, flat)
+            ctx.occluded_touching(x_p, y, flat)
         };
         if blocked {
             return None;

@@ -254,6 +254,15 @@ fn dead_end_sides_reach_nothing() {
     assert!(t.reach_from(0, toward_wall).wall && !t.reach_from(0, -toward_wall).wall);
 }
 
+/// A point of hidden triangle `t`, uniform by area (the square folded onto the triangle).
+fn point_on(geom: &SceneGeometry, t: u32, s: &mut Sampler) -> Vec3 {
+    let [mut b1, mut b2] = s.next_2d();
+    if b1 + b2 > 1.0 {
+        (b1, b2) = (1.0 - b1, 1.0 - b2);
+    }
+    geom.hidden[t as usize].point([b1, b2])
+}
+
 /// Next-event culling toward a point spot (`geometry::point_shadow`): from a triangle that
 /// `clear_toward(l)` clears, no segment to `l` is blocked by a hidden triangle, by the
 /// `f64` reference and by the full test, for spots across the wall; and on shapes that do
@@ -291,11 +300,7 @@ fn triangles_cleared_toward_a_spot_see_it() {
                 cleared += 1;
                 let mut s = Sampler::independent(17, i as u64, t);
                 for _ in 0..400 {
-                    let [mut b1, mut b2] = s.next_2d();
-                    if b1 + b2 > 1.0 {
-                        (b1, b2) = (1.0 - b1, 1.0 - b2);
-                    }
-                    let a = geom.hidden[t as usize].point([b1, b2]);
+                    let a = point_on(&geom, t, &mut s);
                     segments += 1;
                     assert!(
                         !reference(&geom, (a, t), (l, None)),
@@ -344,11 +349,7 @@ fn culled_segments_to_the_measurement_points_answer_as_the_full_test() {
                     cleared += ((clear >> t) & 1) as u32;
                     let mut s = Sampler::independent(5, m as u64, t);
                     for _ in 0..50 {
-                        let [mut b1, mut b2] = s.next_2d();
-                        if b1 + b2 > 1.0 {
-                            (b1, b2) = (1.0 - b1, 1.0 - b2);
-                        }
-                        let a = geom.hidden[t as usize].point([b1, b2]);
+                        let a = point_on(&geom, t, &mut s);
                         segments += 1;
                         assert_eq!(
                             ctx.occluded_touching(a, end, t),

@@ -8,7 +8,7 @@
 
 use super::blockers::{BlockerSets, Blockers, Reach, Side};
 use super::packet::{self, TriPacket};
-use super::point_shadow::{self, PointShadow};
+use super::point_shadow::PointShadow;
 use super::wall_plane::WallPlane;
 use crate::geometry::sampling::AreaDistribution;
 use crate::scene::Scene;
@@ -117,8 +117,8 @@ pub struct SceneGeometry {
     pub eps: f32,
     pub wall_normal: Vec3,
     /// Which hidden triangles nothing shadows toward a point, by point asked for
-    /// ([`SceneGeometry::clear_toward`]); `None` where the blocker sets are all empty or
-    /// there are more than [`point_shadow::MAX_TRIANGLES`] hidden triangles.
+    /// ([`SceneGeometry::clear_toward`]); `None` where the blocker sets are all empty
+    /// (then nothing needs clearing).
     point_shadow: Option<PointShadow>,
 }
 
@@ -189,12 +189,10 @@ impl SceneGeometry {
             }
         };
         let wall_normal = w.normal();
-        let point_shadow = (!blockers.everywhere_empty()
-            && hidden.len() <= point_shadow::MAX_TRIANGLES)
-            .then(|| {
-                let tris: Vec<[Vec3; 3]> = hidden.iter().map(|t| t.v).collect();
-                PointShadow::new(&tris, 0.25 * eps)
-            });
+        let point_shadow = (!blockers.everywhere_empty()).then(|| {
+            let tris: Vec<[Vec3; 3]> = hidden.iter().map(|t| t.v).collect();
+            PointShadow::new(&tris, 0.25 * eps)
+        });
         SceneGeometry {
             accel,
             wall: WallPlane::new(w.center, w.axis_u, w.axis_v),

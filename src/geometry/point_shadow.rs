@@ -25,13 +25,6 @@ use std::sync::Mutex;
 /// Most triangles the bit set holds.
 pub const MAX_TRIANGLES: usize = 64;
 
-/// Bit `t` set: no hidden triangle other than `t` can block a segment from a point of
-/// triangle `t` to `l` (`tris[t]` its corners, `tau` the coplanarity tolerance, m). Empty
-/// for more than [`MAX_TRIANGLES`] triangles.
-pub fn clear_toward(tris: &[[Vec3; 3]], l: Vec3, tau: f32) -> u64 {
-    PointShadow::new(tris, tau).clear_toward(l)
-}
-
 /// The triangles' corners and unit normals in `f64`, worked out once, and the bit sets
 /// already asked for, by point: a single capture asks for the same spot in every
 /// measurement, and a gradient's forward and adjoint passes ask twice.
@@ -48,7 +41,8 @@ struct Tri {
 }
 
 impl PointShadow {
-    /// No triangles kept past [`MAX_TRIANGLES`]: every bit set is then empty.
+    /// `tris[t]` triangle `t`'s corners, `tau` the coplanarity tolerance (m). No
+    /// triangles kept past [`MAX_TRIANGLES`]: every bit set is then empty.
     pub fn new(tris: &[[Vec3; 3]], tau: f32) -> Self {
         let tris = if tris.len() > MAX_TRIANGLES {
             Vec::new()
@@ -68,10 +62,11 @@ impl PointShadow {
         }
     }
 
-    /// [`clear_toward`] for these triangles, from the cache where `l` was asked before.
+    /// Bit `t` set: no triangle other than `t` can block a segment from a point of
+    /// triangle `t` to `l`. From the cache where `l` was asked before.
     pub fn clear_toward(&self, l: Vec3) -> u64 {
         let key = l.to_array().map(f32::to_bits);
-        if let Some(bits) = self.cache.lock().map_or(None, |c| c.get(&key).copied()) {
+        if let Some(bits) = self.cache.lock().ok().and_then(|c| c.get(&key).copied()) {
             return bits;
         }
         let bits = self.work_out(l.as_dvec3());
@@ -178,6 +173,7 @@ mod tests {
     /// moved aside it is, and so is a neighbour folded towards `l` sharing an edge.
     #[test]
     fn plates_and_neighbours() {
+        let clear_toward = |tris: &[[Vec3; 3]], l, tau| PointShadow::new(tris, tau).clear_toward(l);
         let l = Vec3::new(0.0, 0.0, 0.0);
         let t = [
             Vec3::new(-0.1, -0.1, 1.0),

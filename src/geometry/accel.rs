@@ -116,6 +116,10 @@ pub struct SceneGeometry {
     /// Self-intersection offset (m).
     pub eps: f32,
     pub wall_normal: Vec3,
+    /// Distance (m) from the wall's plane to the nearest hidden corner in front of it; 0
+    /// where a hidden triangle touches the plane or lies behind it. A path leaving a wall
+    /// point must next meet hidden geometry at least this far out (the wall is planar).
+    pub wall_gap: f32,
     /// Which hidden triangles nothing shadows toward a point, by point asked for
     /// ([`SceneGeometry::clear_toward`]); `None` where the blocker sets are all empty
     /// (then nothing needs clearing).
@@ -189,6 +193,12 @@ impl SceneGeometry {
             }
         };
         let wall_normal = w.normal();
+        let wall_gap = hidden
+            .iter()
+            .flat_map(|t| t.v)
+            .map(|v| wall_normal.dot(v - w.center))
+            .fold(f32::INFINITY, f32::min)
+            .max(0.0);
         let point_shadow = (!blockers.everywhere_empty()).then(|| {
             let tris: Vec<[Vec3; 3]> = hidden.iter().map(|t| t.v).collect();
             PointShadow::new(&tris, 0.25 * eps)
@@ -204,6 +214,7 @@ impl SceneGeometry {
             wall_tris,
             eps,
             wall_normal,
+            wall_gap,
             point_shadow,
         }
     }

@@ -116,6 +116,11 @@ pub struct MeasurementCtx<'a> {
     /// their visibility rays.
     pub opl_min: f32,
     pub opl_max: f32,
+    /// `(2 d_w)²`, `d_w` the hidden geometry's gap to the wall plane
+    /// ([`SceneGeometry::wall_gap`]), and a floor (m) on the laser leg's OPL: what
+    /// [`MeasurementCtx::past_film`] bounds the rest of a path with.
+    wall_gap2_sq: f32,
+    laser_leg_floor: f32,
     /// Bit `t` set: a segment from hidden triangle `t` to the spot centre `x_l` needs no
     /// hidden-geometry shadow test ([`SceneGeometry::clear_toward`]); worked out on first
     /// use, so models that never ask (tri3) do not pay for it.
@@ -157,6 +162,12 @@ impl<'a> MeasurementCtx<'a> {
             },
             opl_min: (film.start - margin) as f32,
             opl_max: (film.end() + margin) as f32,
+            wall_gap2_sq: (2.0 * geom.wall_gap).powi(2),
+            laser_leg_floor: if scene.account_first_and_last_bounces {
+                ((x_l - scene.laser.origin).length() - scene.laser.spot_radius).max(0.0)
+            } else {
+                0.0
+            },
             spot_clear: OnceLock::new(),
             sensor_clear: OnceLock::new(),
         }
@@ -185,6 +196,25 @@ impl<'a> MeasurementCtx<'a> {
             }
         }
         self.geom.occluded_touching(a, b, flat)
+    }
+
+    /// Whether every contribution a path can still make from vertex `x` (OPL `opl`
+    /// walked to it, `x` on the wall if `on_wall`) lands at or past `opl_max`, so the
+    /// walk can stop there: the film is the same, the work after it is not done. The
+    /// rest of the path is at least `|x − x_l| − r` long (triangle inequality, `r` the
+    /// spot's radius); from a wall point, whose next vertex is hidden and at least
+    /// `d_w` in front of the wall's plane, at least `√((|x − x_l| − r)² + (2 d_w)²)`
+    /// (the shortest bounce off the plane `d_w` out). A relative margin of `1e-5` keeps
+    /// the test clear of `f32` rounding in the summed OPL.
+    #[inline]
+    pub fn past_film(&self, opl: f32, x: Vec3, on_wall: bool) -> bool {
+        let d = ((x - self.x_l).length() - self.scene.laser.spot_radius).max(0.0);
+        let rest = if on_wall {
+            (d * d + self.wall_gap2_sq).sqrt()
+        } else {
+            d
+        };
+        (opl + rest + self.laser_leg_floor) * (1.0 - 1e-5) >= self.opl_max
     }
 
     /// `P (ρ_w/π)²`: the constant factor of every three-bounce contribution (the laser's

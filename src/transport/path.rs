@@ -24,6 +24,9 @@
 //!   which hidden-geometry sampling alone continues and can reach nothing in front of its
 //!   plane (a planar or convex object, the wall not sampled) ends the path before the
 //!   step is drawn (`path_step::can_continue`: those continuations have zero weight).
+//!   A walk also ends where all it could still record lands past the film's end
+//!   (`MeasurementCtx::past_film`, a lower bound on the rest of the path): the film is
+//!   the same bits, the steps after are not drawn.
 //!
 //! The measurement contribution of a path `x_s = y_0, y_1, …, y_k, x_l` is
 //! `f(y_0) G(y_0,y_1) f(y_1) … f(y_k) G(y_k, x_l) · P (ρ_w/π)` (point spot), each
@@ -378,7 +381,10 @@ pub(crate) fn trace<S: Sink>(
     let closing = if spot.is_point() { 2 } else { 1 };
     let mut first = Some(first);
     for j in 1u32.. {
-        if j + closing > max_bounces || !can_continue(ctx, &x) {
+        if j + closing > max_bounces
+            || !can_continue(ctx, &x)
+            || ctx.past_film(opl, x.p(), x.on_wall())
+        {
             break;
         }
         // --- continuation: sample y_j by one of the two techniques -----------------

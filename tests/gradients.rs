@@ -321,6 +321,25 @@ fn path_corner_letter_and_sphere() {
     check(&s, Model::Path, 256, 6);
 }
 
+/// Russian roulette before `rr_bounces` (`render.rr_early_survival`): the replay
+/// divides by the same constant survival and keeps the forward pass's decisions.
+#[test]
+fn path_with_roulette_before_rr_bounces() {
+    let roulette = "max_bounces = 5\nbsdf_sampling = false\nrr_early_survival = 0.5";
+    let corner = scene_with_render(
+        "confocal",
+        &[("c.obj", CORNER, 0.7, [0.0123, 0.0071, 0.0])],
+        roulette,
+    );
+    assert_eq!(corner.render.rr_early_survival, 0.5);
+    check(&corner, Model::Path, 512, 8);
+    // MIS on a closed smooth mesh (continuous under finite differences, as above).
+    let sphere = sphere_obj();
+    let mis = "max_bounces = 5\nrr_early_survival = 0.5";
+    let s = scene_with_render("confocal", &[("s.obj", &sphere, 0.6, [0.0; 3])], mis);
+    check(&s, Model::Path, 256, 6);
+}
+
 /// A finite laser spot (path replay): next-event estimation to a point drawn on the disk,
 /// balanced against continuations that land on it; and the spot reached by landing alone
 /// (laser sampling off, the wall drawn by area sampling, so landing points stay put and

@@ -32,6 +32,7 @@ pub const NAMES: &[&str] = &[
     "bsdf_sampling",
     "visible_legs",
     "boundary_terms",
+    "rr_early_survival",
 ];
 
 /// A scene with the options applied, the options as the renderer takes them, and the
@@ -85,6 +86,7 @@ pub fn resolve<'a>(
             "max_error" => o.max_error = Some(value(k, &v)?),
             "visible_legs" => o.visible_legs = Some(value(k, &v)?),
             "boundary_terms" => o.boundary_terms = Some(value(k, &v)?),
+            "rr_early_survival" => o.rr_early_survival = Some(value(k, &v)?),
             "threads" => threads = Some(value::<usize>(k, &v)?),
             other => {
                 return Err(UmbraError::new_err(format!(
@@ -99,7 +101,8 @@ pub fn resolve<'a>(
     let same_scene = r.max_bounces == scene.render.max_bounces
         && r.techniques == scene.render.techniques
         && r.visible_legs == scene.render.visible_legs
-        && r.boundary_terms == scene.render.boundary_terms;
+        && r.boundary_terms == scene.render.boundary_terms
+        && r.rr_early_survival == scene.render.rr_early_survival;
     let scene = if same_scene {
         // Only settings `RenderOptions` carries changed: no copy of the scene.
         Cow::Borrowed(scene)

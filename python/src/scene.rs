@@ -102,6 +102,7 @@ impl PyScene {
         d.set_item("bsdf_sampling", r.techniques.bsdf_sampling)?;
         d.set_item("visible_legs", r.visible_legs)?;
         d.set_item("boundary_terms", r.boundary_terms)?;
+        d.set_item("rr_early_survival", r.rr_early_survival)?;
         Ok(d)
     }
 

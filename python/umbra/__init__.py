@@ -54,7 +54,8 @@ def render(scene: Scene, spp: Optional[int] = None, model: Optional[str] = None,
            bsdf_sampling: Optional[bool] = None, visibility: Optional[str] = None,
            subdivision: Optional[float] = None, max_error: Optional[float] = None,
            visible_legs: Optional[bool] = None,
-           boundary_terms: Optional[bool] = None) -> np.ndarray:
+           boundary_terms: Optional[bool] = None,
+           rr_early_survival: Optional[float] = None) -> np.ndarray:
     """The scene's transient: a new float32 array in mitransient's layout ``(sy, sx, T)``
     (``(sy, sx, ly, lx, T)`` for exhaustive capture). Same seed, same output, whatever
     the thread count.
@@ -69,14 +70,17 @@ def render(scene: Scene, spp: Optional[int] = None, model: Optional[str] = None,
     error the chosen model may leave; ``visible_legs`` test the laser -> laser spot and
     sensor point -> detector lines for occlusion by hidden objects (default True, as
     mitransient: a blocked measurement records 0); False when you know they are clear;
-    ``boundary_terms`` is :func:`grad`'s (a render is the same with or without it).
+    ``boundary_terms`` is :func:`grad`'s (a render is the same with or without it);
+    ``rr_early_survival`` (path) the probability a path goes on past each vertex before
+    the scene's ``rr_bounces`` (Russian roulette from the first hidden vertex; default
+    1.0, none): lower pays where paths of 4+ bounces carry little of the error.
     Render, grad, fit and the CLI refuse the same combinations with the same message."""
     return _render(scene, spp=spp, model=model, seed=seed, threads=threads,
                    max_depth=max_depth, laser_sampling=laser_sampling,
                    hidden_geometry_sampling=hidden_geometry_sampling,
                    bsdf_sampling=bsdf_sampling, visibility=visibility,
                    subdivision=subdivision, max_error=max_error, visible_legs=visible_legs,
-                   boundary_terms=boundary_terms)
+                   boundary_terms=boundary_terms, rr_early_survival=rr_early_survival)
 
 
 def grad(scene: Scene, adjoint: Optional[npt.ArrayLike] = None, spp: Optional[int] = None,
@@ -87,7 +91,8 @@ def grad(scene: Scene, adjoint: Optional[npt.ArrayLike] = None, spp: Optional[in
          bsdf_sampling: Optional[bool] = None, visibility: Optional[str] = None,
          subdivision: Optional[float] = None, max_error: Optional[float] = None,
          visible_legs: Optional[bool] = None,
-         boundary_terms: Optional[bool] = None) -> Dict[str, Any]:
+         boundary_terms: Optional[bool] = None,
+         rr_early_survival: Optional[float] = None) -> Dict[str, Any]:
     """``dLoss/dθ`` for the scene's hidden objects, given either
 
     - ``adjoint = dLoss/dH`` (the render's shape) for a loss of your own, or
@@ -119,7 +124,7 @@ def grad(scene: Scene, adjoint: Optional[npt.ArrayLike] = None, spp: Optional[in
                  hidden_geometry_sampling=hidden_geometry_sampling,
                  bsdf_sampling=bsdf_sampling, visibility=visibility,
                  subdivision=subdivision, max_error=max_error, visible_legs=visible_legs,
-                 boundary_terms=boundary_terms)
+                 boundary_terms=boundary_terms, rr_early_survival=rr_early_survival)
 
 
 def _schedule_toml(stages: Sequence[Mapping[str, Any]]) -> str:

@@ -425,6 +425,9 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
             // Russian roulette does not change the expectation; mitransient starts it
             // at vertex depth rr_depth, Umbra after rr_bounces bounces.
             rr_bounces: u32::try_from(rr_depth).unwrap_or(u32::MAX),
+            // Umbra's own roulette before that (mitransient has none; CLI
+            // `--rr-early-survival`).
+            rr_early_survival: crate::scene::DEFAULT_RR_EARLY_SURVIVAL,
             seed: 0,
             model: Model::Path,
             techniques: Techniques {

@@ -271,8 +271,19 @@ pub struct RenderSettings {
     pub filter_bounces: Option<u32>,
     /// Drop paths that never leave the wall (laser spot straight to the sensor point).
     pub discard_direct_paths: bool,
-    /// Russian roulette starts after this many bounces.
+    /// Russian roulette by albedo starts after this many bounces (survival `ρ`, clamped
+    /// to `[0.05, 0.95]`).
     pub rr_bounces: u32,
+    /// `path`: the probability that a path goes on past a vertex before `rr_bounces`
+    /// (Russian roulette of constant survival from the first hidden vertex on; 1, the
+    /// default, = every path goes on). The three-bounce term is recorded before the
+    /// roulette and keeps all its samples; the longer paths get fewer. It pays where
+    /// they carry little of the error and much of the cost, and loses where they carry
+    /// most of it (BENCHMARKS.md, "Russian roulette before rr_bounces": 0.35 reaches
+    /// equal error 1.5x sooner on the arc, 2.8x later on the concave corner). Does not
+    /// change the expectation.
+    #[serde(default = "default_rr_early_survival")]
+    pub rr_early_survival: f32,
     pub seed: u64,
     pub model: Model,
     pub techniques: Techniques,
@@ -292,6 +303,14 @@ pub struct RenderSettings {
     /// surfaces, `adjoint::boundary`) to the interior derivative. On by default; off
     /// reproduces the interior-only gradient (faster where nothing occludes).
     pub boundary_terms: bool,
+}
+
+/// [`RenderSettings::rr_early_survival`]'s default: no roulette before `rr_bounces`
+/// (a constant that helps one scene hurts another; see its doc).
+pub const DEFAULT_RR_EARLY_SURVIVAL: f32 = 1.0;
+
+fn default_rr_early_survival() -> f32 {
+    DEFAULT_RR_EARLY_SURVIVAL
 }
 
 impl RenderSettings {
@@ -518,6 +537,13 @@ impl Scene {
         }
         if !(self.laser.spot_radius.is_finite() && self.laser.spot_radius >= 0.0) {
             return err("laser.spot_radius", "must be finite and >= 0".into());
+        }
+        let q = self.render.rr_early_survival;
+        if !(q > 0.0 && q <= 1.0) {
+            return err(
+                "render.rr_early_survival",
+                format!("must be in (0, 1], got {q}"),
+            );
         }
         let f = &self.film;
         if f.temporal_bins == 0 {

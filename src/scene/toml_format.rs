@@ -159,6 +159,8 @@ struct RenderT {
     discard_direct_paths: bool,
     #[serde(default = "default_rr")]
     rr_bounces: u32,
+    #[serde(default = "default_rr_early_survival")]
+    rr_early_survival: f32,
     #[serde(default)]
     seed: u64,
     #[serde(default = "yes")]
@@ -208,6 +210,9 @@ fn default_max_bounces() -> i64 {
 }
 fn default_rr() -> u32 {
     5
+}
+fn default_rr_early_survival() -> f32 {
+    super::DEFAULT_RR_EARLY_SURVIVAL
 }
 fn yes() -> bool {
     true
@@ -456,6 +461,7 @@ pub fn parse(
         filter_bounces: r.filter_bounces,
         discard_direct_paths: r.discard_direct_paths,
         rr_bounces: r.rr_bounces,
+        rr_early_survival: r.rr_early_survival,
         seed: r.seed,
         model,
         techniques: Techniques {

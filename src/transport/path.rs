@@ -18,7 +18,9 @@
 //!   too, and the two are combined by the balance heuristic (NEE area pdf `1/(π r²)`
 //!   against the BSDF technique's area density at the spot point);
 //! - **Russian roulette** once a path has `rr_bounces` bounces, survival probability the
-//!   local albedo (at most 0.95); `max_bounces` caps the length, `filter_bounces` keeps
+//!   local albedo (at most 0.95); before that, from the first hidden vertex on, of
+//!   constant survival `rr_early_survival` (1, no roulette, by default) after the
+//!   vertex's own contribution is recorded; `max_bounces` caps the length, `filter_bounces` keeps
 //!   only paths of one length (mitransient's `filter_bounces`, in our count), and
 //!   `discard_direct_paths` drops paths that never leave the wall. A hidden vertex from
 //!   which hidden-geometry sampling alone continues and can reach nothing in front of its
@@ -108,6 +110,8 @@ enum Deferred {
     /// Russian roulette's division by the survival probability at the replay's vertex:
     /// the wall's albedo, or (`None`) the hidden vertex's own.
     Survive(Option<f32>),
+    /// The roulette's division by a constant survival probability (before `rr_bounces`).
+    SurviveConstant(f32),
 }
 
 /// `w_bsdf` of the continuation from the sensor point to hidden point `y` (on hidden
@@ -314,6 +318,7 @@ impl Replay {
                     };
                     self.beta = self.beta / survival(albedo);
                 }
+                Deferred::SurviveConstant(q) => self.beta = self.beta / PathDual::c(q as f64),
             }
         }
     }
@@ -470,7 +475,8 @@ pub(crate) fn trace<S: Sink>(
             }
         }
 
-        // --- Russian roulette before extending past rr_bounces -----------------------
+        // --- Russian roulette before extending: by albedo from rr_bounces on, of
+        // constant survival before (the recorded terms above keep every sample) ------
         if j + 2 >= r.rr_bounces {
             let survive = survival(y.albedo);
             if sampler.get_1d(u_rr) >= survive {
@@ -480,6 +486,15 @@ pub(crate) fn trace<S: Sink>(
             if replay.is_some() {
                 let wall_albedo = y.on_wall().then_some(y.albedo);
                 scratch.deferred.push(Deferred::Survive(wall_albedo));
+            }
+        } else if r.rr_early_survival < 1.0 {
+            let survive = r.rr_early_survival;
+            if sampler.get_1d(u_rr) >= survive {
+                break;
+            }
+            beta /= survive;
+            if replay.is_some() {
+                scratch.deferred.push(Deferred::SurviveConstant(survive));
             }
         }
         x = y;

@@ -343,7 +343,7 @@ pub(crate) fn survival<R: Real>(albedo: R) -> R {
 /// the steps, `f` of the last vertex not included) and `opl` the length walked (m).
 /// `first_bounce` is the bounce count of a path closed at `start`: the walk stops before
 /// paths would pass `last_bounce`, and plays Russian roulette once they have
-/// `rr_bounces`, like `path`.
+/// `rr_bounces`, like `path` (not its roulette before `rr_bounces`, `rr_early_survival`).
 pub(crate) fn walk(
     ctx: &MeasurementCtx,
     start: WalkVertex,

@@ -52,6 +52,12 @@ pub struct RenderFlags {
     /// true); false gives the interior derivative alone (faster where nothing occludes).
     #[arg(long)]
     pub boundary_terms: Option<bool>,
+    /// path: the probability that a path goes on past each vertex before rr_bounces
+    /// (Russian roulette from the first hidden vertex on; default: the scene's
+    /// render.rr_early_survival, 1 = every path goes on). Lower values pay where paths
+    /// of four and more bounces carry little of the error (BENCHMARKS.md).
+    #[arg(long)]
+    pub rr_early_survival: Option<f32>,
 }
 
 impl RenderFlags {
@@ -69,6 +75,7 @@ impl RenderFlags {
             max_error: self.max_error,
             visible_legs: self.visible_legs,
             boundary_terms: self.boundary_terms,
+            rr_early_survival: self.rr_early_survival,
         }
     }
 }

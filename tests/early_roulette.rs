@@ -1,0 +1,109 @@
+//! Russian roulette before `rr_bounces` (`render.rr_early_survival`, `path`): paths go on
+//! past each vertex with a constant probability `q`, their throughput divided by it. It
+//! must not move the expectation (the arc, which lights itself, multi-bounce, against
+//! `q = 1` over seeds), must leave the three-bounce term's samples alone, and a value
+//! outside `(0, 1]` is refused naming the setting.
+
+mod common;
+
+use std::path::Path;
+use umbra::scene::{Model, Scene};
+use umbra::transport::gate::Overrides;
+
+fn arc() -> Scene {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/validation/scenes/arc.xml");
+    let d: Vec<(String, String)> = [
+        ("max_depth", "6"),
+        ("filter_bounces", "-1"),
+        ("scan_x", "4"),
+        ("scan_y", "4"),
+    ]
+    .iter()
+    .map(|(a, b)| (a.to_string(), b.to_string()))
+    .collect();
+    let mut s = Scene::load_with_defines(&p, &d).unwrap_or_else(|e| panic!("{e}"));
+    s.render.techniques.bsdf_sampling = true;
+    s
+}
+
+/// `(mean, standard error)` of the energy of paths of four or more bounces (the film's
+/// total minus the three-bounce term, which the roulette does not touch) over `seeds`.
+fn longer_paths_energy(s: &Scene, spp: u32, seeds: u64) -> (f64, f64) {
+    let mut three = s.clone();
+    three.render.filter_bounces = Some(3);
+    let e: Vec<f64> = (0..seeds)
+        .map(|k| {
+            let all: f64 = common::totals(&common::render(s, Model::Path, spp, 100 + k))
+                .iter()
+                .sum();
+            let t3: f64 = common::totals(&common::render(&three, Model::Path, spp, 100 + k))
+                .iter()
+                .sum();
+            all - t3
+        })
+        .collect();
+    let n = seeds as f64;
+    let m = e.iter().sum::<f64>() / n;
+    let var = e.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (n - 1.0);
+    (m, (var / n).sqrt())
+}
+
+#[test]
+fn roulette_before_rr_bounces_keeps_the_expectation() {
+    let full = arc();
+    let mut roulette = full.clone();
+    roulette.render.rr_early_survival = 0.35;
+    let (m1, e1) = longer_paths_energy(&full, 1024, 8);
+    let (mq, eq) = longer_paths_energy(&roulette, 1024, 8);
+    let z = (mq - m1) / (e1 * e1 + eq * eq).sqrt();
+    println!("longer paths' energy: q = 1 {m1:.5e} ± {e1:.1e}, q = 0.35 {mq:.5e} ± {eq:.1e}, z = {z:+.2}");
+    // Not vacuous: the longer paths carry energy, and the roulette adds noise to them.
+    assert!(m1 > 20.0 * e1, "no interreflection signal: {m1} ± {e1}");
+    assert!(eq > e1, "the roulette added no noise: {eq} vs {e1}");
+    assert!(z.abs() < 4.0, "z = {z}");
+}
+
+#[test]
+fn the_three_bounce_term_is_recorded_before_the_roulette() {
+    // Three-bounce contributions of the same samples are the same bits: NEE at the first
+    // hidden vertex comes before the roulette there.
+    let mut s = arc();
+    s.render.filter_bounces = Some(3);
+    s.render.max_bounces = 6;
+    let a = common::render(&s, Model::Path, 256, 9).data;
+    s.render.rr_early_survival = 0.2;
+    let b = common::render(&s, Model::Path, 256, 9).data;
+    assert!(a.iter().any(|&v| v > 0.0));
+    assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
+}
+
+#[test]
+fn a_survival_outside_zero_one_is_refused_naming_the_setting() {
+    let toml = |q: &str| {
+        common::SceneSpec {
+            render_extra: vec![format!("rr_early_survival = {q}")],
+            ..Default::default()
+        }
+        .try_scene()
+    };
+    assert_eq!(toml("0.5").unwrap().render.rr_early_survival, 0.5);
+    for bad in ["0.0", "1.5", "-0.2", "nan"] {
+        let e = toml(bad).err().unwrap_or_else(|| panic!("{bad} accepted"));
+        assert!(
+            e.to_string().contains("render.rr_early_survival"),
+            "{bad}: {e}"
+        );
+    }
+    let mut s = arc();
+    for bad in [0.0f32, 2.0, f32::NAN] {
+        let o = Overrides {
+            rr_early_survival: Some(bad),
+            ..Default::default()
+        };
+        let e = o
+            .apply(&mut s)
+            .err()
+            .unwrap_or_else(|| panic!("{bad} accepted"));
+        assert!(e.to_string().contains("rr_early_survival"), "{bad}: {e}");
+    }
+}

@@ -7,8 +7,11 @@
 mod common;
 
 use std::path::Path;
-use umbra::scene::{Model, Scene};
-use umbra::transport::gate::Overrides;
+use umbra::geometry::SceneGeometry;
+use umbra::scene::{EarlySurvival, Model, Scene};
+use umbra::transport::gate::{Overrides, Pass};
+use umbra::transport::roulette::{RoulettePilot, MIN_PILOT_SPP};
+use umbra::transport::{RenderOptions, Renderer};
 
 fn arc() -> Scene {
     let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/validation/scenes/arc.xml");
@@ -50,9 +53,10 @@ fn longer_paths_energy(s: &Scene, spp: u32, seeds: u64) -> (f64, f64) {
 
 #[test]
 fn roulette_before_rr_bounces_keeps_the_expectation() {
-    let full = arc();
+    let mut full = arc();
+    full.render.rr_early_survival = EarlySurvival::Fixed(1.0);
     let mut roulette = full.clone();
-    roulette.render.rr_early_survival = 0.35;
+    roulette.render.rr_early_survival = EarlySurvival::Fixed(0.35);
     let (m1, e1) = longer_paths_energy(&full, 1024, 8);
     let (mq, eq) = longer_paths_energy(&roulette, 1024, 8);
     let z = (mq - m1) / (e1 * e1 + eq * eq).sqrt();
@@ -70,8 +74,9 @@ fn the_three_bounce_term_is_recorded_before_the_roulette() {
     let mut s = arc();
     s.render.filter_bounces = Some(3);
     s.render.max_bounces = 6;
+    s.render.rr_early_survival = EarlySurvival::Fixed(1.0);
     let a = common::render(&s, Model::Path, 256, 9).data;
-    s.render.rr_early_survival = 0.2;
+    s.render.rr_early_survival = EarlySurvival::Fixed(0.2);
     let b = common::render(&s, Model::Path, 256, 9).data;
     assert!(a.iter().any(|&v| v > 0.0));
     assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
@@ -86,8 +91,15 @@ fn a_survival_outside_zero_one_is_refused_naming_the_setting() {
         }
         .try_scene()
     };
-    assert_eq!(toml("0.5").unwrap().render.rr_early_survival, 0.5);
-    for bad in ["0.0", "1.5", "-0.2", "nan"] {
+    let q = |t: &str| toml(t).unwrap().render.rr_early_survival;
+    assert_eq!(q("0.5"), EarlySurvival::Fixed(0.5));
+    assert_eq!(q("\"auto\""), EarlySurvival::Auto);
+    let default = common::SceneSpec::default()
+        .scene()
+        .render
+        .rr_early_survival;
+    assert_eq!(default, EarlySurvival::Auto);
+    for bad in ["0.0", "1.5", "-0.2", "nan", "\"sometimes\""] {
         let e = toml(bad).err().unwrap_or_else(|| panic!("{bad} accepted"));
         assert!(
             e.to_string().contains("render.rr_early_survival"),
@@ -95,9 +107,9 @@ fn a_survival_outside_zero_one_is_refused_naming_the_setting() {
         );
     }
     let mut s = arc();
-    for bad in [0.0f32, 2.0, f32::NAN] {
+    for bad in ["0", "2", "NaN", "often"] {
         let o = Overrides {
-            rr_early_survival: Some(bad),
+            rr_early_survival: Some(bad.into()),
             ..Default::default()
         };
         let e = o
@@ -106,4 +118,45 @@ fn a_survival_outside_zero_one_is_refused_naming_the_setting() {
             .unwrap_or_else(|| panic!("{bad} accepted"));
         assert!(e.to_string().contains("rr_early_survival"), "{bad}: {e}");
     }
+}
+
+/// What the pilot picks for `scene` at `spp` (`None`: it did not run).
+fn pilot(scene: &Scene, spp: u32) -> Option<RoulettePilot> {
+    let geom = SceneGeometry::build(scene);
+    let opts = RenderOptions {
+        model: Model::Path,
+        spp,
+        ..RenderOptions::from_scene(scene)
+    };
+    Renderer::prepare(scene, &geom, &opts, Pass::Render)
+        .unwrap()
+        .roulette
+}
+
+#[test]
+fn the_pilot_plays_the_roulette_where_it_pays_and_not_where_it_loses() {
+    // The arc (16 x 16, confocal): the longer paths carry little of the error; measured,
+    // survival 0.25 reaches equal error 1.5x sooner than none.
+    let mut s = arc();
+    (s.scan.nx, s.scan.ny) = (16, 16);
+    s.capture = umbra::scene::CaptureType::Confocal;
+    let p = pilot(&s, 8192).expect("the pilot runs at 8192 spp");
+    println!("arc: {p:?}");
+    assert!(p.survival < 0.5 && p.gain > 1.2, "{p:?}");
+    // The concave corner of the accuracy chart: four and more bounces carry most of the
+    // error, and any roulette loses (0.7: 1.3x later to equal error, measured).
+    let corner = umbra::bench::accuracy::scene("corner").unwrap();
+    for spp in [4096, 16384] {
+        let p = pilot(&corner, spp).expect("the pilot runs");
+        println!("corner at {spp} spp: {p:?}");
+        assert_eq!(p.survival, 1.0, "{p:?}");
+    }
+    // Too few samples to pay for a pilot, or no vertex before rr_bounces: none.
+    assert!(pilot(&s, 8 * MIN_PILOT_SPP - 1).is_none());
+    let mut early = s.clone();
+    early.render.rr_bounces = 3;
+    assert!(pilot(&early, 8192).is_none());
+    // A fixed survival is not second-guessed.
+    s.render.rr_early_survival = EarlySurvival::Fixed(1.0);
+    assert!(pilot(&s, 8192).is_none());
 }

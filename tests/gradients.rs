@@ -331,7 +331,10 @@ fn path_with_roulette_before_rr_bounces() {
         &[("c.obj", CORNER, 0.7, [0.0123, 0.0071, 0.0])],
         roulette,
     );
-    assert_eq!(corner.render.rr_early_survival, 0.5);
+    assert_eq!(
+        corner.render.rr_early_survival,
+        umbra::scene::EarlySurvival::Fixed(0.5)
+    );
     check(&corner, Model::Path, 512, 8);
     // MIS on a closed smooth mesh (continuous under finite differences, as above).
     let sphere = sphere_obj();

@@ -86,7 +86,12 @@ pub fn resolve<'a>(
             "max_error" => o.max_error = Some(value(k, &v)?),
             "visible_legs" => o.visible_legs = Some(value(k, &v)?),
             "boundary_terms" => o.boundary_terms = Some(value(k, &v)?),
-            "rr_early_survival" => o.rr_early_survival = Some(value(k, &v)?),
+            "rr_early_survival" => {
+                o.rr_early_survival = Some(match v.extract::<f64>() {
+                    Ok(q) => q.to_string(),
+                    Err(_) => value::<String>(k, &v)?,
+                })
+            }
             "threads" => threads = Some(value::<usize>(k, &v)?),
             other => {
                 return Err(UmbraError::new_err(format!(

@@ -102,7 +102,10 @@ impl PyScene {
         d.set_item("bsdf_sampling", r.techniques.bsdf_sampling)?;
         d.set_item("visible_legs", r.visible_legs)?;
         d.set_item("boundary_terms", r.boundary_terms)?;
-        d.set_item("rr_early_survival", r.rr_early_survival)?;
+        match r.rr_early_survival {
+            umbra::scene::EarlySurvival::Auto => d.set_item("rr_early_survival", "auto")?,
+            umbra::scene::EarlySurvival::Fixed(q) => d.set_item("rr_early_survival", q)?,
+        }
         Ok(d)
     }
 

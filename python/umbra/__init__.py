@@ -55,7 +55,7 @@ def render(scene: Scene, spp: Optional[int] = None, model: Optional[str] = None,
            subdivision: Optional[float] = None, max_error: Optional[float] = None,
            visible_legs: Optional[bool] = None,
            boundary_terms: Optional[bool] = None,
-           rr_early_survival: Optional[float] = None) -> np.ndarray:
+           rr_early_survival: Union[str, float, None] = None) -> np.ndarray:
     """The scene's transient: a new float32 array in mitransient's layout ``(sy, sx, T)``
     (``(sy, sx, ly, lx, T)`` for exhaustive capture). Same seed, same output, whatever
     the thread count.
@@ -72,8 +72,8 @@ def render(scene: Scene, spp: Optional[int] = None, model: Optional[str] = None,
     mitransient: a blocked measurement records 0); False when you know they are clear;
     ``boundary_terms`` is :func:`grad`'s (a render is the same with or without it);
     ``rr_early_survival`` (path) the probability a path goes on past each vertex before
-    the scene's ``rr_bounces`` (Russian roulette from the first hidden vertex; default
-    1.0, none): lower pays where paths of 4+ bounces carry little of the error.
+    the scene's ``rr_bounces`` (Russian roulette from the first hidden vertex): "auto"
+    (the default) lets a pilot pick it per render, 1.0 plays none.
     Render, grad, fit and the CLI refuse the same combinations with the same message."""
     return _render(scene, spp=spp, model=model, seed=seed, threads=threads,
                    max_depth=max_depth, laser_sampling=laser_sampling,
@@ -92,7 +92,7 @@ def grad(scene: Scene, adjoint: Optional[npt.ArrayLike] = None, spp: Optional[in
          subdivision: Optional[float] = None, max_error: Optional[float] = None,
          visible_legs: Optional[bool] = None,
          boundary_terms: Optional[bool] = None,
-         rr_early_survival: Optional[float] = None) -> Dict[str, Any]:
+         rr_early_survival: Union[str, float, None] = None) -> Dict[str, Any]:
     """``dLoss/dθ`` for the scene's hidden objects, given either
 
     - ``adjoint = dLoss/dH`` (the render's shape) for a loss of your own, or

@@ -89,7 +89,7 @@ def render(
     bsdf_sampling: Optional[bool] = None,
     visible_legs: Optional[bool] = None,
     boundary_terms: Optional[bool] = None,
-    rr_early_survival: Optional[float] = None,
+    rr_early_survival: Union[str, float, None] = None,
 ) -> npt.NDArray[np.float32]:
     """The scene's transient (float32, mitransient's layout); options left at None take
     the scene's value."""
@@ -113,7 +113,7 @@ def grad(
     bsdf_sampling: Optional[bool] = None,
     visible_legs: Optional[bool] = None,
     boundary_terms: Optional[bool] = None,
-    rr_early_survival: Optional[float] = None,
+    rr_early_survival: Union[str, float, None] = None,
 ) -> Dict[str, Any]:
     """``dLoss/dθ`` for ``adjoint`` (dLoss/dH) or for ``loss`` ("l2" or
     "l2-normalized") against ``target``: a dict with ``vertices`` (list of ``(V_k, 3)``

@@ -19,9 +19,10 @@ use super::{gradient, Gradient, Loss};
 use crate::error::Result;
 use crate::film::Film;
 use crate::geometry::SceneGeometry;
-use crate::scene::{Model, Scene};
+use crate::scene::{EarlySurvival, Model, Scene};
+use crate::transport::gate::Pass;
 use crate::transport::tri3::Tri3Mesh;
-use crate::transport::{render, tri3_exact, MeasurementCtx, RenderOptions};
+use crate::transport::{render, tri3_exact, MeasurementCtx, RenderOptions, Renderer};
 
 /// A parameter: a vertex coordinate or an object's albedo.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -64,6 +65,20 @@ impl Row {
             .map(|&(_, fd)| (self.adjoint - fd).abs() / fd.abs().max(floor))
             .fold(f64::INFINITY, f64::min)
     }
+}
+
+/// `scene` with `path`'s roulette survival fixed at what the pilot picks for it
+/// (`transport::roulette`), so the renders of the moved scenes play the same roulette
+/// as the adjoint (common random numbers), as their sampling is frozen at `base`.
+fn frozen_roulette(scene: &Scene, opts: &RenderOptions) -> Result<Scene> {
+    let mut s = scene.clone();
+    if s.render.rr_early_survival == EarlySurvival::Auto {
+        let geom = SceneGeometry::build(scene);
+        let driver = Renderer::prepare(scene, &geom, opts, Pass::Gradient)?;
+        let q = driver.roulette.map_or(1.0, |r| r.survival);
+        s.render.rr_early_survival = EarlySurvival::Fixed(q);
+    }
+    Ok(s)
 }
 
 /// The scene's loss at its current parameters, sampling frozen at `base`.
@@ -182,6 +197,7 @@ pub fn setup(
 /// Compares the adjoint with central differences at steps `hs` (vertex steps in m;
 /// albedo steps are 30x larger, the albedo's scale being ~1 against a mesh's ~0.03 m).
 pub fn run(scene: &Scene, opts: &RenderOptions, params: &[Param], hs: &[f64]) -> Result<Vec<Row>> {
+    let scene = &frozen_roulette(scene, opts)?;
     let (target, adjoint, full, base) = setup(scene, opts)?;
     let g = if full.boundary {
         let mut interior_scene = scene.clone();

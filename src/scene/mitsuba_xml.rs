@@ -427,7 +427,7 @@ fn integrator_cfg(cx: &mut Cx, node: &Node) -> Result<IntegratorCfg> {
             rr_bounces: u32::try_from(rr_depth).unwrap_or(u32::MAX),
             // Umbra's own roulette before that (mitransient has none; CLI
             // `--rr-early-survival`).
-            rr_early_survival: crate::scene::DEFAULT_RR_EARLY_SURVIVAL,
+            rr_early_survival: crate::scene::EarlySurvival::Auto,
             seed: 0,
             model: Model::Path,
             techniques: Techniques {

@@ -275,15 +275,13 @@ pub struct RenderSettings {
     /// to `[0.05, 0.95]`).
     pub rr_bounces: u32,
     /// `path`: the probability that a path goes on past a vertex before `rr_bounces`
-    /// (Russian roulette of constant survival from the first hidden vertex on; 1, the
-    /// default, = every path goes on). The three-bounce term is recorded before the
-    /// roulette and keeps all its samples; the longer paths get fewer. It pays where
-    /// they carry little of the error and much of the cost, and loses where they carry
-    /// most of it (BENCHMARKS.md, "Russian roulette before rr_bounces": 0.35 reaches
-    /// equal error 1.5x sooner on the arc, 2.8x later on the concave corner). Does not
-    /// change the expectation.
-    #[serde(default = "default_rr_early_survival")]
-    pub rr_early_survival: f32,
+    /// (Russian roulette of constant survival from the first hidden vertex on, after
+    /// the vertex's own contribution: the three-bounce term keeps all its samples).
+    /// `Auto`, the default, has a pilot choose it per render by the efficiency it buys
+    /// (`transport::roulette`; 1 where the longer paths carry much of the error, as on
+    /// the concave corner). Does not change the expectation.
+    #[serde(default)]
+    pub rr_early_survival: EarlySurvival,
     pub seed: u64,
     pub model: Model,
     pub techniques: Techniques,
@@ -305,12 +303,45 @@ pub struct RenderSettings {
     pub boundary_terms: bool,
 }
 
-/// [`RenderSettings::rr_early_survival`]'s default: no roulette before `rr_bounces`
-/// (a constant that helps one scene hurts another; see its doc).
-pub const DEFAULT_RR_EARLY_SURVIVAL: f32 = 1.0;
+/// [`RenderSettings::rr_early_survival`]: chosen per render, or fixed.
+#[derive(serde::Serialize, serde::Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub enum EarlySurvival {
+    /// A pilot picks it (`transport::roulette`).
+    #[default]
+    Auto,
+    /// This survival, in `(0, 1]` (1: no roulette before `rr_bounces`).
+    Fixed(f32),
+}
 
-fn default_rr_early_survival() -> f32 {
-    DEFAULT_RR_EARLY_SURVIVAL
+impl EarlySurvival {
+    /// `"auto"` or a number in `(0, 1]`.
+    pub fn parse(text: &str) -> std::result::Result<Self, String> {
+        if text.trim().eq_ignore_ascii_case("auto") {
+            return Ok(EarlySurvival::Auto);
+        }
+        match text.trim().parse::<f32>() {
+            Ok(q) => Self::fixed(q),
+            Err(_) => Err(format!("'{text}' is not auto or a number in (0, 1]")),
+        }
+    }
+
+    /// A fixed survival `q`, checked to lie in `(0, 1]`.
+    pub fn fixed(q: f32) -> std::result::Result<Self, String> {
+        if q > 0.0 && q <= 1.0 {
+            Ok(EarlySurvival::Fixed(q))
+        } else {
+            Err(format!("must be auto or in (0, 1], got {q}"))
+        }
+    }
+}
+
+impl std::fmt::Display for EarlySurvival {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            EarlySurvival::Auto => write!(f, "auto"),
+            EarlySurvival::Fixed(q) => write!(f, "{q}"),
+        }
+    }
 }
 
 impl RenderSettings {
@@ -538,12 +569,10 @@ impl Scene {
         if !(self.laser.spot_radius.is_finite() && self.laser.spot_radius >= 0.0) {
             return err("laser.spot_radius", "must be finite and >= 0".into());
         }
-        let q = self.render.rr_early_survival;
-        if !(q > 0.0 && q <= 1.0) {
-            return err(
-                "render.rr_early_survival",
-                format!("must be in (0, 1], got {q}"),
-            );
+        if let EarlySurvival::Fixed(q) = self.render.rr_early_survival {
+            if let Err(e) = EarlySurvival::fixed(q) {
+                return err("render.rr_early_survival", e);
+            }
         }
         let f = &self.film;
         if f.temporal_bins == 0 {

@@ -5,8 +5,8 @@
 //! against the scene file's folder.
 
 use super::{
-    CaptureType, Detector, FilmSpec, HiddenObject, KernelSpec, Laser, LaserEmission, Model,
-    Reflectance, RelayWall, RenderSettings, ScanGrid, Scene, Techniques, Visibility,
+    CaptureType, Detector, EarlySurvival, FilmSpec, HiddenObject, KernelSpec, Laser, LaserEmission,
+    Model, Reflectance, RelayWall, RenderSettings, ScanGrid, Scene, Techniques, Visibility,
 };
 use crate::error::{Error, Result};
 use crate::geometry::mesh::TriMesh;
@@ -159,8 +159,9 @@ struct RenderT {
     discard_direct_paths: bool,
     #[serde(default = "default_rr")]
     rr_bounces: u32,
-    #[serde(default = "default_rr_early_survival")]
-    rr_early_survival: f32,
+    /// `"auto"` or a number.
+    #[serde(default)]
+    rr_early_survival: Option<SurvivalT>,
     #[serde(default)]
     seed: u64,
     #[serde(default = "yes")]
@@ -211,8 +212,12 @@ fn default_max_bounces() -> i64 {
 fn default_rr() -> u32 {
     5
 }
-fn default_rr_early_survival() -> f32 {
-    super::DEFAULT_RR_EARLY_SURVIVAL
+/// `render.rr_early_survival` as written: a number, or a word (`"auto"`).
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum SurvivalT {
+    Number(f64),
+    Word(String),
 }
 fn yes() -> bool {
     true
@@ -461,7 +466,13 @@ pub fn parse(
         filter_bounces: r.filter_bounces,
         discard_direct_paths: r.discard_direct_paths,
         rr_bounces: r.rr_bounces,
-        rr_early_survival: r.rr_early_survival,
+        rr_early_survival: match &r.rr_early_survival {
+            None => EarlySurvival::Auto,
+            Some(SurvivalT::Number(q)) => EarlySurvival::Fixed(*q as f32),
+            Some(SurvivalT::Word(w)) => {
+                EarlySurvival::parse(w).map_err(|e| field("render.rr_early_survival", e))?
+            }
+        },
         seed: r.seed,
         model,
         techniques: Techniques {

@@ -167,8 +167,9 @@ pub struct Overrides {
     pub visible_legs: Option<bool>,
     /// Gradients: add the visibility boundary terms.
     pub boundary_terms: Option<bool>,
-    /// `path`: survival of the Russian roulette before `rr_bounces`, in (0, 1].
-    pub rr_early_survival: Option<f32>,
+    /// `path`: survival of the Russian roulette before `rr_bounces`: `auto` or a
+    /// number in (0, 1].
+    pub rr_early_survival: Option<String>,
 }
 
 impl Overrides {
@@ -227,11 +228,11 @@ impl Overrides {
         r.max_error = self.max_error.unwrap_or(r.max_error);
         r.visible_legs = self.visible_legs.unwrap_or(r.visible_legs);
         r.boundary_terms = self.boundary_terms.unwrap_or(r.boundary_terms);
-        if let Some(q) = self.rr_early_survival {
-            if !(q > 0.0 && q <= 1.0) {
-                return bad(format!("rr_early_survival: must be in (0, 1], got {q}"));
-            }
-            r.rr_early_survival = q;
+        if let Some(q) = &self.rr_early_survival {
+            r.rr_early_survival = match crate::scene::EarlySurvival::parse(q) {
+                Ok(q) => q,
+                Err(e) => return bad(format!("rr_early_survival: {e}")),
+            };
         }
         let opts = RenderOptions::from_settings(r);
         check_values(r.max_bounces, &opts)?;

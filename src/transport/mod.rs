@@ -21,6 +21,7 @@ pub mod path;
 pub mod path_lanes;
 pub(crate) mod path_step;
 pub mod render;
+pub mod roulette;
 pub mod tri3;
 pub mod tri3_adjoint;
 pub mod tri3_exact;
@@ -121,6 +122,10 @@ pub struct MeasurementCtx<'a> {
     /// [`MeasurementCtx::past_film`] bounds the rest of a path with.
     wall_gap2_sq: f32,
     laser_leg_floor: f32,
+    /// `path`: survival of the Russian roulette before `rr_bounces`: the scene's fixed
+    /// `render.rr_early_survival`, or what [`roulette`]'s pilot chose for the render
+    /// ([`render::Renderer::measurement`]); 1 (none) for `auto` elsewhere.
+    pub rr_early_survival: f32,
     /// Bit `t` set: a segment from hidden triangle `t` to the spot centre `x_l` needs no
     /// hidden-geometry shadow test ([`SceneGeometry::clear_toward`]); worked out on first
     /// use, so models that never ask (tri3) do not pay for it.
@@ -163,6 +168,10 @@ impl<'a> MeasurementCtx<'a> {
             opl_min: (film.start - margin) as f32,
             opl_max: (film.end() + margin) as f32,
             wall_gap2_sq: (2.0 * geom.wall_gap).powi(2),
+            rr_early_survival: match scene.render.rr_early_survival {
+                crate::scene::EarlySurvival::Fixed(q) => q,
+                crate::scene::EarlySurvival::Auto => 1.0,
+            },
             laser_leg_floor: if scene.account_first_and_last_bounces {
                 ((x_l - scene.laser.origin).length() - scene.laser.spot_radius).max(0.0)
             } else {

@@ -95,6 +95,9 @@ pub struct PathScratch {
     /// triangles (their further derivatives are lost), and all contributions.
     pub truncated: u64,
     pub emitted: u64,
+    /// Continuations drawn from the second vertex on: from `y_1`, and from `y_2` or
+    /// later (the roulette's pilot counts their cost).
+    pub later_steps: [u64; 2],
     /// The replay's actions not yet applied ([`Deferred`]; one path's, reused).
     deferred: Vec<Deferred>,
 }
@@ -399,7 +402,12 @@ pub(crate) fn trace<S: Sink>(
                 sampler.reserve_2d();
                 st
             }
-            _ => step(ctx, &x.s, x.on_wall(), sampler.next_2d()),
+            _ => {
+                if j >= 2 {
+                    scratch.later_steps[usize::from(j >= 3)] += 1;
+                }
+                step(ctx, &x.s, x.on_wall(), sampler.next_2d())
+            }
         };
         // Set aside, read only where needed (a finite spot; Russian roulette).
         let u_spot = sampler.reserve_2d();
@@ -487,8 +495,8 @@ pub(crate) fn trace<S: Sink>(
                 let wall_albedo = y.on_wall().then_some(y.albedo);
                 scratch.deferred.push(Deferred::Survive(wall_albedo));
             }
-        } else if r.rr_early_survival < 1.0 {
-            let survive = r.rr_early_survival;
+        } else if ctx.rr_early_survival < 1.0 {
+            let survive = ctx.rr_early_survival;
             if sampler.get_1d(u_rr) >= survive {
                 break;
             }

@@ -19,7 +19,7 @@ use super::{run_samples, HistogramSink, MeasurementCtx, Sink, BLOCK_SPP};
 use crate::error::{Error, Result};
 use crate::film::Film;
 use crate::geometry::SceneGeometry;
-use crate::scene::{Model, Scene, Visibility};
+use crate::scene::{EarlySurvival, Model, Scene, Visibility};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
@@ -86,6 +86,8 @@ pub struct Renderer<'a> {
     /// Why `auto` chose `model`, with the pilot's measurements.
     pub auto_choice: Option<AutoChoice>,
     pub(crate) tri3: Option<Tri3Mesh>,
+    /// `path`: what the roulette's pilot measured and chose (`roulette`), if it ran.
+    pub roulette: Option<super::roulette::RoulettePilot>,
 }
 
 impl<'a> Renderer<'a> {
@@ -119,20 +121,40 @@ impl<'a> Renderer<'a> {
             m => (m, None),
         };
         let tri3 = (model == Model::Tri3).then(|| Tri3Mesh::build(scene, geom, opts.subdivision));
+        let film = Film::new(&scene.film);
+        let auto_roulette = scene.render.rr_early_survival == EarlySurvival::Auto;
+        let roulette = (model == Model::Path && auto_roulette)
+            .then(|| {
+                let r = &scene.render;
+                super::roulette::pilot(
+                    scene.num_measurements(),
+                    &film,
+                    opts.seed,
+                    opts.spp,
+                    r.rr_bounces,
+                    |m| MeasurementCtx::new(scene, geom, &film, m),
+                )
+            })
+            .flatten();
         Ok(Renderer {
             scene,
             geom,
             opts: RenderOptions { model, ..*opts },
-            film: Film::new(&scene.film),
+            film,
             model,
             auto_choice,
             tri3,
+            roulette,
         })
     }
 
     /// Measurement `m`'s context (its laser and sensor points, legs, film window).
     pub fn measurement(&self, m: usize) -> MeasurementCtx<'a> {
-        MeasurementCtx::new(self.scene, self.geom, &self.film, m)
+        let mut ctx = MeasurementCtx::new(self.scene, self.geom, &self.film, m);
+        if let Some(r) = &self.roulette {
+            ctx.rr_early_survival = r.survival;
+        }
+        ctx
     }
 
     /// A Monte Carlo measurement's sample blocks: `BLOCK_SPP` samples each, the last one

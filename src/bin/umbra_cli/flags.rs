@@ -53,11 +53,10 @@ pub struct RenderFlags {
     #[arg(long)]
     pub boundary_terms: Option<bool>,
     /// path: the probability that a path goes on past each vertex before rr_bounces
-    /// (Russian roulette from the first hidden vertex on; default: the scene's
-    /// render.rr_early_survival, 1 = every path goes on). Lower values pay where paths
-    /// of four and more bounces carry little of the error (BENCHMARKS.md).
+    /// (Russian roulette from the first hidden vertex on): auto (default, the scene's
+    /// render.rr_early_survival) lets a pilot pick it per render; 1 = every path goes on.
     #[arg(long)]
-    pub rr_early_survival: Option<f32>,
+    pub rr_early_survival: Option<String>,
 }
 
 impl RenderFlags {
@@ -75,7 +74,7 @@ impl RenderFlags {
             max_error: self.max_error,
             visible_legs: self.visible_legs,
             boundary_terms: self.boundary_terms,
-            rr_early_survival: self.rr_early_survival,
+            rr_early_survival: self.rr_early_survival.clone(),
         }
     }
 }

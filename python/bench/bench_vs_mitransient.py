@@ -76,11 +76,10 @@ UMBRA_VARIANTS = {
            ("Umbra mc3 (laser + HGS)", ["--model", "mc3"])],
     "mb": [("Umbra path, XML techniques (laser + HGS)", []),
            ("Umbra path, MIS (BSDF + HGS) + laser", ["--bsdf-sampling", "true"]),
-           # Not the default: Russian roulette before rr_bounces pays where paths of 4+
-           # bounces carry little of the error (these two scenes), and loses where they
-           # carry much (the concave corner of bench accuracy, 2.8x later at 0.35).
-           ("Umbra path, MIS + laser, --rr-early-survival 0.35",
-            ["--bsdf-sampling", "true", "--rr-early-survival", "0.35"])],
+           # The same without the roulette before rr_bounces that a pilot picks by
+           # default (transport::roulette): what the roulette buys, in the same run.
+           ("Umbra path, MIS + laser, no early roulette (--rr-early-survival 1)",
+            ["--bsdf-sampling", "true", "--rr-early-survival", "1"])],
 }
 MT_LABEL = "mitransient llvm_ad_mono (laser + HGS)"
 # reference: (Umbra args, spp per seed, seeds)

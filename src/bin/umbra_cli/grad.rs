@@ -250,6 +250,8 @@ pub fn bench_grad(args: &BenchArgs) -> umbra::Result<()> {
             (Model::Mc3, 64),
             (Model::Mc3, 512),
             (Model::Path, 64),
+            // From 1024 spp the roulette's pilot runs in both passes (`transport::roulette`).
+            (Model::Path, 1024),
             (Model::Tri3, 1),
         ] {
             let t = bench::grad_timing(&scene, model, spp, args.reps)?;

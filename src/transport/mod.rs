@@ -19,6 +19,7 @@ pub mod mc3;
 pub mod mc3_lanes;
 pub mod path;
 pub mod path_lanes;
+mod path_replay;
 pub(crate) mod path_step;
 pub mod render;
 pub mod roulette;

@@ -67,16 +67,14 @@
 //! laser sampling on (then those paths carry the small MIS share `q/(q + 1/(π r²))`),
 //! or BSDF sampling off (the gate says so).
 
-use super::mc3::TriParams;
+use super::path_replay::{Deferred, PathReplay};
 use super::path_step::{
-    bsdf_share, can_continue, continuation, hidden_geometry_distribution, p_hg_at, step, survival,
-    technique_probabilities, Step, Surf, WalkVertex,
+    bsdf_share, can_continue, p_hg_at, step, survival, technique_probabilities, Step, Surf,
+    WalkVertex,
 };
 pub use super::path_step::{BSDF_SHARE_AT_HIDDEN, BSDF_SHARE_AT_WALL};
 use super::{sample_spot, Contribution, HiddenGrad, MeasurementCtx, Sink};
-use crate::adjoint::dual::{self, Dual, Real, V3};
-use crate::geometry::sampling::cosine_dir;
-use crate::geometry::SurfaceKind;
+use crate::adjoint::dual::{self, Dual, Real};
 use crate::rng::Sampler;
 use glam::Vec3;
 use std::f32::consts::{FRAC_1_PI, PI};
@@ -102,21 +100,6 @@ pub struct PathScratch {
     deferred: Vec<Deferred>,
 }
 
-/// A replay action held back until a contribution needs the replay's state: the dual
-/// arithmetic of the steps after a path's last contribution (a step that lands on the
-/// wall and goes no further, a walk cut by Russian roulette) is never done. Applied in
-/// the order they were recorded, with the same inputs, so the derivatives are the same
-/// bits as a replay that follows every step at once.
-#[derive(Clone, Copy)]
-enum Deferred {
-    Step(Step, (f32, f32)),
-    /// Russian roulette's division by the survival probability at the replay's vertex:
-    /// the wall's albedo, or (`None`) the hidden vertex's own.
-    Survive(Option<f32>),
-    /// The roulette's division by a constant survival probability (before `rr_bounces`).
-    SurviveConstant(f32),
-}
-
 /// `w_bsdf` of the continuation from the sensor point to hidden point `y` (on hidden
 /// triangle `flat`): the visibility boundary terms (`adjoint::boundary`) weight their two
 /// forms by it.
@@ -132,7 +115,7 @@ pub(crate) fn bsdf_share_from_sensor(ctx: &MeasurementCtx, y: Vec3, flat: u32) -
 /// `p_nee = 1/(π r²)`) and by continuations that land on it (density `q`), combined by the
 /// balance heuristic. Both weights are written once over [`Real`]: the forward pass runs
 /// them in `f32`, the replay in dual numbers.
-struct Spot {
+pub(super) struct Spot {
     radius: f32,
     /// `1/(π r²)`; 0 for a point spot.
     p_nee: f32,
@@ -142,7 +125,7 @@ struct Spot {
 }
 
 impl Spot {
-    fn new(ctx: &MeasurementCtx) -> Spot {
+    pub(super) fn new(ctx: &MeasurementCtx) -> Spot {
         let radius = ctx.scene.laser.spot_radius;
         let lit = ctx.f_wall * ctx.power;
         let (p_nee, emitted) = if radius > 0.0 {
@@ -159,7 +142,7 @@ impl Spot {
         }
     }
 
-    fn is_point(&self) -> bool {
+    pub(super) fn is_point(&self) -> bool {
         self.radius <= 0.0
     }
 
@@ -170,7 +153,7 @@ impl Spot {
     /// balance weight `w_nee = p_nee / (p_nee + q_l)`, `q_l = c_bsdf G/π + c_hg p_hg(x_l)`
     /// the continuation's area density at `x_l` (`c` at a hidden vertex; `p_hg_l`, area
     /// sampling's density at the wall point, does not move with the hidden geometry).
-    fn nee<R: Real>(
+    pub(super) fn nee<R: Real>(
         &self,
         y: &Surf<R>,
         beta: R,
@@ -199,140 +182,13 @@ impl Spot {
 
     /// A continuation that lands on the finite spot with mixture density `q`:
     /// `β L_e w_emit`, `w_emit = q / (q + p_nee)` when laser sampling competes, else 1.
-    fn emission<R: Real>(&self, beta: R, q: R) -> R {
+    pub(super) fn emission<R: Real>(&self, beta: R, q: R) -> R {
         let w = if self.laser_sampling {
             q / (q + R::c(self.p_nee as f64))
         } else {
             R::c(1.0)
         };
         beta * w.s(self.emitted)
-    }
-}
-
-/// The adjoint pass's state: the path's vertex, throughput and OPL in dual numbers, the
-/// last continuation's mixture density, and which hidden triangle owns each slot group.
-struct Replay {
-    groups: [u32; PATH_TRIANGLES],
-    used: usize,
-    truncated: bool,
-    x: Surf<PathDual>,
-    beta: PathDual,
-    opl: PathDual,
-    q: PathDual,
-}
-
-impl Replay {
-    fn new(ctx: &MeasurementCtx) -> Replay {
-        Replay {
-            groups: [0; PATH_TRIANGLES],
-            used: 0,
-            truncated: false,
-            x: Surf {
-                p: dual::constant(ctx.x_s),
-                n_side: dual::constant(ctx.n_w),
-                f: PathDual::c(ctx.f_wall as f64),
-            },
-            beta: PathDual::c(1.0),
-            opl: PathDual::c(ctx.opl_sensor_leg as f64),
-            q: PathDual::c(0.0),
-        }
-    }
-
-    /// Triangle `flat` in dual numbers (its own slots; constants once the slots are full).
-    fn triangle(&mut self, ctx: &MeasurementCtx, flat: u32) -> TriParams<PathDual> {
-        let tri = &ctx.geom.hidden[flat as usize];
-        let g = match self.groups[..self.used].iter().position(|&f| f == flat) {
-            Some(g) => g,
-            None if self.used < PATH_TRIANGLES => {
-                self.groups[self.used] = flat;
-                self.used += 1;
-                self.used - 1
-            }
-            None => {
-                self.truncated = true;
-                let c = TriParams::constant(tri);
-                return TriParams {
-                    v: c.v.map(|v| v.map(|x| PathDual::c(x as f64))),
-                    albedo: c.albedo.map(|a| PathDual::c(a as f64)),
-                    two_sided: c.two_sided,
-                    retro: c.retro,
-                    retro_falloff: c.retro_falloff,
-                };
-            }
-        };
-        TriParams::variables_at(tri, 12 * g)
-    }
-
-    /// The forward pass's step `st` from the replay's vertex, in dual numbers: an
-    /// area-sampled point keeps its barycentrics (the wall's stays put), a ray-found point
-    /// is the ray's intersection with the plane of what it hit (it moves along the ray,
-    /// whose direction follows `x`'s normal); then the same [`continuation`] as the
-    /// forward pass, with area sampling's density over the current triangle area.
-    fn step(&mut self, ctx: &MeasurementCtx, st: &Step, techniques: (f32, f32)) {
-        let on_ray = |x: &Surf<PathDual>, n: V3<PathDual>, on_plane: V3<PathDual>| {
-            let (d, _) = cosine_dir(x.n_side, st.u_dir);
-            let t = dual::dot(n, dual::sub(on_plane, x.p)) / dual::dot(n, d);
-            let y: V3<PathDual> = std::array::from_fn(|k| x.p[k] + d[k] * t);
-            y
-        };
-        let (y, n, n_side, f, p_hg) = if st.kind == SurfaceKind::Wall {
-            let n = dual::constant(ctx.n_w);
-            let y = if st.by_bsdf {
-                on_ray(&self.x, n, dual::constant(ctx.scene.wall.center))
-            } else {
-                dual::constant(st.y.p())
-            };
-            let f = PathDual::c(ctx.f_wall as f64);
-            (y, n, n, f, PathDual::c(st.p_hg as f64))
-        } else {
-            let tri = self.triangle(ctx, st.y.flat);
-            let (n, area) = tri.normal_area();
-            let (y, b) = if st.by_bsdf {
-                let y = on_ray(&self.x, n, tri.v[0]);
-                (y, tri.barycentric_of(y))
-            } else {
-                (
-                    tri.point(st.y.bary),
-                    st.y.bary.map(|b| PathDual::c(b as f64)),
-                )
-            };
-            let hg = hidden_geometry_distribution(ctx.geom, &ctx.scene.render.techniques);
-            let p_hg = PathDual::c(hg.prob(st.y.flat) as f64) / area;
-            let n_side = if st.back { n.map(|c| -c) } else { n };
-            (y, n, n_side, tri.albedo_at_r(b).s(FRAC_1_PI), p_hg)
-        };
-        let (factor, dist, q) = continuation(&self.x, y, n, techniques, p_hg);
-        self.beta = self.beta * factor;
-        self.opl = self.opl + dist;
-        self.q = q;
-        self.x = Surf { p: y, n_side, f };
-    }
-
-    /// Applies the actions deferred so far (`deferred` is left empty).
-    fn catch_up(&mut self, ctx: &MeasurementCtx, deferred: &mut Vec<Deferred>) {
-        for d in deferred.drain(..) {
-            match d {
-                Deferred::Step(st, techniques) => self.step(ctx, &st, techniques),
-                Deferred::Survive(wall_albedo) => {
-                    // The albedo in dual numbers: ρ = π f at a hidden vertex.
-                    let albedo = match wall_albedo {
-                        Some(a) => PathDual::c(a as f64),
-                        None => self.x.f.s(PI),
-                    };
-                    self.beta = self.beta / survival(albedo);
-                }
-                Deferred::SurviveConstant(q) => self.beta = self.beta / PathDual::c(q as f64),
-            }
-        }
-    }
-
-    /// The derivatives of a contribution's weight and OPL, per triangle slot.
-    fn grads(&self, weight: &PathDual, opl: &PathDual) -> [HiddenGrad; PATH_TRIANGLES] {
-        std::array::from_fn(|g| HiddenGrad {
-            flat: self.groups[g],
-            weight: std::array::from_fn(|k| weight.d[12 * g + k]),
-            opl: std::array::from_fn(|k| opl.d[12 * g + k]),
-        })
     }
 }
 
@@ -380,7 +236,7 @@ pub(crate) fn trace<S: Sink>(
     let mut beta = 1.0f32; // throughput up to x, without f(x)
     let mut opl = ctx.opl_sensor_leg; // OPL from the detector (or x_s) to x
     let mut hidden_seen = false;
-    let mut replay = S::ADJOINT.then(|| Replay::new(ctx));
+    let mut replay = S::ADJOINT.then(|| PathReplay::new(ctx));
     scratch.deferred.clear();
 
     // The shortest path y_j can close: j + 1 bounces by landing on a finite spot; a point
@@ -434,9 +290,7 @@ pub(crate) fn trace<S: Sink>(
                 if total_opl >= ctx.opl_min && total_opl < ctx.opl_max {
                     let grad = replay.as_mut().map(|rp| {
                         rp.catch_up(ctx, &mut scratch.deferred);
-                        let w = spot.emission(rp.beta, rp.q);
-                        let o = rp.opl + ctx.laser_leg(rp.x.p);
-                        (rp.grads(&w, &o), rp.used, rp.truncated)
+                        rp.emission(ctx, &spot)
                     });
                     emit(
                         scratch,
@@ -466,9 +320,7 @@ pub(crate) fn trace<S: Sink>(
                     if in_film && weight > 0.0 && !ctx.occluded_touching(y.p(), x_l, y.flat) {
                         let grad = replay.as_mut().and_then(|rp| {
                             rp.catch_up(ctx, &mut scratch.deferred);
-                            let (w, r_d) = spot.nee(&rp.x, rp.beta, x_l, n_w, from_y, p_hg_l)?;
-                            let o = rp.opl + r_d + PathDual::c(ctx.opl_laser_leg(x_l) as f64);
-                            Some((rp.grads(&w, &o), rp.used, rp.truncated))
+                            rp.nee(ctx, &spot, x_l, from_y, p_hg_l)
                         });
                         emit(
                             scratch,

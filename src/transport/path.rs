@@ -67,7 +67,7 @@
 //! laser sampling on (then those paths carry the small MIS share `q/(q + 1/(π r²))`),
 //! or BSDF sampling off (the gate says so).
 
-use super::path_replay::{Deferred, PathReplay};
+use super::path_replay::{Deferred, NeeTarget, PathReplay};
 use super::path_step::{
     bsdf_share, can_continue, p_hg_at, step, survival, technique_probabilities, Step, Surf,
     WalkVertex,
@@ -320,7 +320,12 @@ pub(crate) fn trace<S: Sink>(
                     if in_film && weight > 0.0 && !ctx.occluded_touching(y.p(), x_l, y.flat) {
                         let grad = replay.as_mut().and_then(|rp| {
                             rp.catch_up(ctx, &mut scratch.deferred);
-                            rp.nee(ctx, &spot, x_l, from_y, p_hg_l)
+                            let at = NeeTarget {
+                                x_l,
+                                from_y,
+                                p_hg_l,
+                            };
+                            rp.nee(ctx, &spot, &at)
                         });
                         emit(
                             scratch,

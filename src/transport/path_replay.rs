@@ -23,6 +23,15 @@ use std::f32::consts::{FRAC_1_PI, PI};
 /// the path met more triangles than it could follow.
 pub(super) type Grads = ([HiddenGrad; PATH_TRIANGLES], usize, bool);
 
+/// Where next-event estimation connects: the spot point `x_l`, the MIS probabilities of
+/// the continuation techniques at the hidden vertex, and area sampling's density at `x_l`.
+#[derive(Clone, Copy)]
+pub(super) struct NeeTarget {
+    pub x_l: Vec3,
+    pub from_y: (f32, f32),
+    pub p_hg_l: f32,
+}
+
 /// A replay action held back until a contribution needs the replay's state: the dual
 /// arithmetic of the steps after a path's last contribution (a step that lands on the
 /// wall and goes no further, a walk cut by Russian roulette) is never done. Applied in
@@ -171,15 +180,13 @@ impl<const N: usize> Replay<N> {
         self.grads(&w, &o)
     }
 
-    /// Next-event estimation to spot point `x_l`: its weight's and OPL's derivatives.
-    fn nee(
-        &self,
-        ctx: &MeasurementCtx,
-        spot: &Spot,
-        x_l: Vec3,
-        from_y: (f32, f32),
-        p_hg_l: f32,
-    ) -> Option<Grads> {
+    /// Next-event estimation to the spot point `at`: its weight's and OPL's derivatives.
+    fn nee(&self, ctx: &MeasurementCtx, spot: &Spot, at: &NeeTarget) -> Option<Grads> {
+        let NeeTarget {
+            x_l,
+            from_y,
+            p_hg_l,
+        } = *at;
         let (w, r_d) = spot.nee(&self.x, self.beta, x_l, ctx.n_w, from_y, p_hg_l)?;
         let o = self.opl + r_d + Dual::<f32, N>::c(ctx.opl_laser_leg(x_l) as f64);
         Some(self.grads(&w, &o))
@@ -253,17 +260,10 @@ impl PathReplay {
     }
 
     /// See [`Replay::nee`].
-    pub(super) fn nee(
-        &self,
-        ctx: &MeasurementCtx,
-        spot: &Spot,
-        x_l: Vec3,
-        from_y: (f32, f32),
-        p_hg_l: f32,
-    ) -> Option<Grads> {
+    pub(super) fn nee(&self, ctx: &MeasurementCtx, spot: &Spot, at: &NeeTarget) -> Option<Grads> {
         match self {
-            PathReplay::One(r) => r.nee(ctx, spot, x_l, from_y, p_hg_l),
-            PathReplay::Many(r) => r.nee(ctx, spot, x_l, from_y, p_hg_l),
+            PathReplay::One(r) => r.nee(ctx, spot, at),
+            PathReplay::Many(r) => r.nee(ctx, spot, at),
         }
     }
 }

@@ -15,13 +15,23 @@ use umbra::scene::{CaptureType, Model, Scene};
 /// bounce back off the wall end past its film), multi-bounce, BSDF + hidden-geometry
 /// sampling under MIS.
 fn arc(defines: &[(&str, &str)]) -> Scene {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/validation/scenes/arc.xml");
+    xml("arc.xml", 4, defines)
+}
+
+/// A cross-validation scene (`arc.xml`, `T.xml`), multi-bounce, MIS.
+fn xml(name: &str, scan: u32, defines: &[(&str, &str)]) -> Scene {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("python/validation/scenes")
+        .join(name);
     let mut d: Vec<(String, String)> = [("max_depth", "6"), ("filter_bounces", "-1")]
         .iter()
         .chain(defines)
         .map(|(a, b)| (a.to_string(), b.to_string()))
         .collect();
-    d.extend([("scan_x".into(), "4".into()), ("scan_y".into(), "4".into())]);
+    d.extend([
+        ("scan_x".into(), scan.to_string()),
+        ("scan_y".into(), scan.to_string()),
+    ]);
     let mut s = Scene::load_with_defines(&p, &d).unwrap_or_else(|e| panic!("{e}"));
     s.render.techniques.bsdf_sampling = true;
     s

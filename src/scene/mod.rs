@@ -335,15 +335,6 @@ impl EarlySurvival {
     }
 }
 
-impl std::fmt::Display for EarlySurvival {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            EarlySurvival::Auto => write!(f, "auto"),
-            EarlySurvival::Fixed(q) => write!(f, "{q}"),
-        }
-    }
-}
-
 impl RenderSettings {
     /// The longest path kept, in bounces: `max_bounces`, or the bounce filter's length.
     pub fn longest_bounces(&self) -> u32 {

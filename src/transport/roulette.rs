@@ -23,7 +23,8 @@
 //! `q²`; `q` is the best of a grid over `[MIN_SURVIVAL, 1]`, and 1 unless it is predicted
 //! to gain at least [`MIN_GAIN`]. The pilot is `2/8` of a render on `1/16` of the
 //! measurements (1.6 % of the render); below [`MIN_PILOT_SPP`]` · 8` spp it is not run
-//! and `q = 1`. Deterministic: fixed seeds, fixed order, one thread.
+//! and `q = 1`. Deterministic: fixed seeds, fixed order
+//! (measurements in parallel, summed in their order).
 //!
 //! Measured (BENCHMARKS.md, "Russian roulette before rr_bounces"; 8 renders each against
 //! a 4 x 65536 spp reference): on the arc, multi-bounce, 8192 spp, it picks 0.2–0.3 and
@@ -36,6 +37,7 @@ use super::path::PathScratch;
 use super::{run_samples, Contribution, MeasurementCtx, Sink};
 use crate::film::Film;
 use crate::scene::Model;
+use rayon::prelude::*;
 
 /// Smallest survival the pilot picks.
 pub const MIN_SURVIVAL: f32 = 0.2;
@@ -86,7 +88,7 @@ pub fn pilot<'a>(
     seed: u64,
     spp: u32,
     rr_bounces: u32,
-    ctx: impl Fn(usize) -> MeasurementCtx<'a>,
+    ctx: impl Fn(usize) -> MeasurementCtx<'a> + Sync,
 ) -> Option<RoulettePilot> {
     if spp / 8 < MIN_PILOT_SPP || rr_bounces <= 3 {
         return None;
@@ -98,10 +100,12 @@ pub fn pilot<'a>(
     let bins = film.bins;
     // Sums of squared differences of the two renders per term, at n/4 and at n, and of
     // the squared means (the relative errors' scale).
-    let mut d2 = [[0.0f64; 2]; 3];
-    let mut norm2 = 0.0f64;
-    let (mut samples, mut steps) = (0u64, [0u64; 2]);
-    for i in 0..k {
+    // Per measurement, in parallel (each its own renders), summed in measurement order:
+    // `(d2, norm2, samples, steps)`.
+    let tally = |i: usize| {
+        let mut d2 = [[0.0f64; 2]; 3];
+        let mut norm2 = 0.0f64;
+        let (mut samples, mut steps) = (0u64, [0u64; 2]);
         let m = (2 * i + 1) * num_measurements / (2 * k);
         let mut ctx = ctx(m);
         ctx.rr_early_survival = 1.0;
@@ -159,6 +163,21 @@ pub fn pilot<'a>(
             }
         }
         norm2 += total.iter().map(|v| v * v).sum::<f64>();
+        (d2, norm2, samples, steps)
+    };
+    let tallies: Vec<_> = (0..k).into_par_iter().map(tally).collect();
+    let mut d2 = [[0.0f64; 2]; 3];
+    let mut norm2 = 0.0f64;
+    let (mut samples, mut steps) = (0u64, [0u64; 2]);
+    for (d, n2, s, st) in tallies {
+        for (acc, x) in d2.iter_mut().flatten().zip(d.iter().flatten()) {
+            *acc += x;
+        }
+        norm2 += n2;
+        samples += s;
+        for (a, b) in steps.iter_mut().zip(st) {
+            *a += b;
+        }
     }
     // Each term's squared error carried from n to spp at its own fitted rate
     // (e² ∝ spp^{-2α}, 2α within [0.5, 3]: from Monte Carlo's rate to scrambled

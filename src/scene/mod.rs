@@ -9,11 +9,13 @@
 
 pub mod checks;
 pub mod default;
+mod early_survival;
 pub mod mitsuba_xml;
 pub mod reflectance;
 pub mod toml_format;
 pub mod wire;
 
+pub use early_survival::EarlySurvival;
 pub use reflectance::{Reflectance, MAX_RETRO_FALLOFF};
 
 use crate::error::{Error, Result};
@@ -301,38 +303,6 @@ pub struct RenderSettings {
     /// surfaces, `adjoint::boundary`) to the interior derivative. On by default; off
     /// reproduces the interior-only gradient (faster where nothing occludes).
     pub boundary_terms: bool,
-}
-
-/// [`RenderSettings::rr_early_survival`]: chosen per render, or fixed.
-#[derive(serde::Serialize, serde::Deserialize, Clone, Copy, Debug, PartialEq, Default)]
-pub enum EarlySurvival {
-    /// A pilot picks it (`transport::roulette`).
-    #[default]
-    Auto,
-    /// This survival, in `(0, 1]` (1: no roulette before `rr_bounces`).
-    Fixed(f32),
-}
-
-impl EarlySurvival {
-    /// `"auto"` or a number in `(0, 1]`.
-    pub fn parse(text: &str) -> std::result::Result<Self, String> {
-        if text.trim().eq_ignore_ascii_case("auto") {
-            return Ok(EarlySurvival::Auto);
-        }
-        match text.trim().parse::<f32>() {
-            Ok(q) => Self::fixed(q),
-            Err(_) => Err(format!("'{text}' is not auto or a number in (0, 1]")),
-        }
-    }
-
-    /// A fixed survival `q`, checked to lie in `(0, 1]`.
-    pub fn fixed(q: f32) -> std::result::Result<Self, String> {
-        if q > 0.0 && q <= 1.0 {
-            Ok(EarlySurvival::Fixed(q))
-        } else {
-            Err(format!("must be auto or in (0, 1], got {q}"))
-        }
-    }
 }
 
 impl RenderSettings {

@@ -10,7 +10,7 @@ use std::path::Path;
 use umbra::geometry::SceneGeometry;
 use umbra::scene::{EarlySurvival, Model, Scene};
 use umbra::transport::gate::{Overrides, Pass};
-use umbra::transport::roulette::{RoulettePilot, MIN_PILOT_SPP};
+use umbra::transport::roulette::{self, RoulettePilot, MIN_PILOT_SPP};
 use umbra::transport::{RenderOptions, Renderer};
 
 fn arc() -> Scene {
@@ -159,4 +159,49 @@ fn the_pilot_plays_the_roulette_where_it_pays_and_not_where_it_loses() {
     // A fixed survival is not second-guessed.
     s.render.rr_early_survival = EarlySurvival::Fixed(1.0);
     assert!(pilot(&s, 8192).is_none());
+}
+
+/// `roulette::resolved`: the survival the pilot picks, fixed in the scene, renders the
+/// same bits as `auto` (so `umbra grad --target`, a fit's evaluation and Ray shards run
+/// the pilot once); a fixed survival and models without the roulette stay as they are.
+#[test]
+fn a_resolved_survival_renders_the_bits_of_auto() {
+    let s = arc();
+    let geom = SceneGeometry::build(&s);
+    let opts = RenderOptions {
+        model: Model::Path,
+        spp: 1024,
+        ..RenderOptions::from_scene(&s)
+    };
+    let fixed = roulette::resolved(&s, &geom, &opts, Pass::Gradient).unwrap();
+    let picked = pilot(&s, 1024)
+        .expect("the pilot runs at 1024 spp")
+        .survival;
+    assert_eq!(fixed.render.rr_early_survival, EarlySurvival::Fixed(picked));
+    assert!(picked < 1.0, "the arc plays the roulette: {picked}");
+    let render = |scene: &Scene| {
+        Renderer::new(scene, &geom, &opts)
+            .unwrap()
+            .render(None)
+            .unwrap()
+    };
+    let (a, b) = (render(&s), render(&fixed));
+    assert!(a
+        .data
+        .iter()
+        .zip(&b.data)
+        .all(|(x, y)| x.to_bits() == y.to_bits()));
+    assert_eq!(
+        roulette::resolved(&fixed, &geom, &opts, Pass::Render)
+            .unwrap()
+            .render
+            .rr_early_survival,
+        EarlySurvival::Fixed(picked)
+    );
+    let mc3 = RenderOptions {
+        model: Model::Mc3,
+        ..opts
+    };
+    let untouched = roulette::resolved(&s, &geom, &mc3, Pass::Render).unwrap();
+    assert_eq!(untouched.render.rr_early_survival, EarlySurvival::Auto);
 }

@@ -8,7 +8,10 @@
 
 mod common;
 
+use common::SceneSpec;
+use glam::Vec3;
 use std::path::Path;
+use umbra::geometry::shapes::icosphere;
 use umbra::scene::{CaptureType, Model, Scene};
 
 /// The arc of the cross-validation suite (a concave sheet that lights itself; paths that
@@ -77,9 +80,11 @@ fn stopping_walks_past_the_film_keeps_every_bin_of_it() {
             past > 1e-3,
             "{capture}: only {past:.2e} of the energy past the film"
         );
-        // The planar letter on its whole 16 x 16 scan at 1024 spp: a wrong bound (walks
-        // from the letter ended as if their next vertex could only be on the wall) cut
-        // in-film paths worth 1e-8 of a bin each, which the CLI saw at this size.
+        // The planar letter on its whole 16 x 16 scan at 1024 spp, where every walk from
+        // the letter ends at once by the wall-only bound `h + 2 d_w`. Before the letter's
+        // continuations were traced against the wall alone (`path_step::Onward`), that
+        // bound cut in-film paths off coplanar neighbours (rounding, 1e-8 of a bin each),
+        // which showed at this size.
         let t = xml("T.xml", 16, &[("capture_type", capture)]);
         let past = same_bins_and_energy_past(&t, 1024);
         assert!(
@@ -99,4 +104,33 @@ fn the_bound_holds_with_a_finite_spot_and_the_visible_legs_counted() {
     s.film.start_opl += 2.0;
     let past = same_bins_and_energy_past(&s, 128);
     assert!(past > 1e-3, "only {past:.2e} of the energy past the film");
+}
+
+/// Objects every vertex of which continues to the wall only, or nowhere
+/// (`path_step::Onward`): a convex sphere, and a plate seen from both sides. Their walks
+/// end by the bound `h + 2 d_w` (to the wall, out to the hidden geometry and back), with
+/// a film whose window holds some of the paths that come back off the wall and not
+/// others.
+#[test]
+fn the_wall_only_bound_keeps_every_bin_of_convex_and_planar_objects() {
+    for two_sided in [false, true] {
+        let spec = SceneSpec {
+            model: "path",
+            two_sided,
+            spp: 256,
+            render_extra: vec!["max_bounces = 6".into()],
+            ..SceneSpec::default()
+        };
+        let plate = spec.scene();
+        let mut sphere = spec.scene();
+        sphere.objects[0].mesh = icosphere(Vec3::new(0.05, 0.0, 0.5), 0.15, 1);
+        for (name, s) in [("plate", plate), ("sphere", sphere)] {
+            assert!(s.render.techniques.bsdf_sampling);
+            let past = same_bins_and_energy_past(&s, 256);
+            assert!(
+                past > 1e-4,
+                "{name} (two-sided {two_sided}): only {past:.2e} of the energy past the film"
+            );
+        }
+    }
 }

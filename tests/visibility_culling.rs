@@ -10,6 +10,7 @@ mod common;
 use common::SceneSpec;
 use glam::Vec3;
 use std::path::Path;
+use umbra::geometry::sampling::cosine_hemisphere;
 use umbra::geometry::shapes::{icosphere, wavy_sheet};
 use umbra::geometry::SceneGeometry;
 use umbra::rng::Sampler;
@@ -179,11 +180,13 @@ fn blocker_sets_of_known_shapes() {
     assert!(culled > 0 && culled < 2 * sheet.hidden.len(), "{culled}");
 }
 
-/// Dead-end continuations (`geometry::blockers::Reach`, `path_step::can_continue`): from a
-/// side of a hidden triangle that reaches no other hidden triangle, every point that
-/// hidden-geometry sampling can draw lies behind the triangle's plane or within
-/// `τ = eps/4` of it (heights in `f64` of points projected onto their planes), so the
-/// dropped continuations have `cos θ_x ≤ 0` up to the rounding of a planar mesh. And
+/// Dead-end and wall-only continuations (`geometry::blockers::Reach`,
+/// `path_step::Onward`): from a side of a hidden triangle that reaches no other hidden
+/// triangle, every point that hidden-geometry sampling can draw lies behind the
+/// triangle's plane or within `τ = eps/4` of it (heights in `f64` of points projected
+/// onto their planes), so the dropped continuations have `cos θ_x ≤ 0` up to the
+/// rounding of a planar mesh; and a BSDF ray's full trace meets what the wall-only
+/// trace meets, or hidden geometry within `τ` of the plane. And
 /// the counts on known shapes: a planar letter reaches nothing from either side, a convex
 /// sphere nothing from the outside, a concave arc and sheet something.
 #[test]
@@ -216,7 +219,7 @@ fn dead_end_sides_reach_nothing() {
             p - n * n.dot(p - tri.v[0].as_dvec3())
         };
         let tau = 0.25 * geom.eps as f64 + 1e-12;
-        let mut dead = 0;
+        let (mut dead, mut grazing) = (0, 0);
         let mut s = Sampler::independent(5, 1, 0);
         for t in 0..geom.hidden.len() as u32 {
             let tri = geom.hidden[t as usize];
@@ -235,11 +238,28 @@ fn dead_end_sides_reach_nothing() {
                         "{name}: triangle {t} reaches {} at height {h}",
                         ts.tri
                     );
+                    // BSDF sampling from this side (`path_step::Onward::WallOnly`) traces
+                    // the wall alone: the full trace meets the same wall point, or
+                    // nothing, or hidden geometry within τ of the plane (rounding).
+                    let x = tri.point(s.next_2d());
+                    let dir = cosine_hemisphere(n_side, s.next_2d()).dir;
+                    let wall = geom.intersect_wall(x, dir).map(|h| h.t.to_bits());
+                    match geom.intersect(x, dir) {
+                        Some(hit) if hit.flat != u32::MAX => {
+                            let h = n_side
+                                .as_dvec3()
+                                .normalize()
+                                .dot(hit.p.as_dvec3() - onto(x, t));
+                            assert!(h <= tau, "{name}: a ray from {t} meets {} at {h}", hit.flat);
+                            grazing += 1;
+                        }
+                        full => assert_eq!(full.map(|h| h.t.to_bits()), wall, "{name}: {t}"),
+                    }
                 }
             }
         }
         eprintln!(
-            "{name}: {dead} of {} triangle sides are dead ends",
+            "{name}: {dead} of {} triangle sides are dead ends ({grazing} rays grazing)",
             2 * geom.hidden.len()
         );
         match expected {

@@ -288,6 +288,7 @@ fn _umbra(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(option_names, m)?)?;
     m.add_function(wrap_pyfunction!(scene::_scene_from_wire, m)?)?;
     m.add_function(wrap_pyfunction!(shards::render_measurements, m)?)?;
+    m.add_function(wrap_pyfunction!(shards::resolve_pilots, m)?)?;
     m.add_function(wrap_pyfunction!(shards::grad_chunk_layout, m)?)?;
     m.add_function(wrap_pyfunction!(shards::grad_chunks, m)?)?;
     m.add_function(wrap_pyfunction!(shards::grad_combine, m)?)?;

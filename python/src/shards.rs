@@ -13,9 +13,10 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use umbra::adjoint::{self, ChunkGrad};
 use umbra::geometry::SceneGeometry;
-use umbra::scene::{Model, Scene};
+use umbra::scene::{EarlySurvival, Model, Scene};
+use umbra::transport::gate::Pass;
 use umbra::transport::mc3::TRI_PARAMS;
-use umbra::transport::{RenderOptions, Renderer};
+use umbra::transport::{roulette, RenderOptions, Renderer};
 
 /// Rows `start..stop` of the render (measurements in the render's order), shape
 /// `(stop - start, T)`.
@@ -36,6 +37,43 @@ pub fn render_measurements<'py>(
         Renderer::new(s, &geom, &opts)?.render_measurements(start..stop, Some(&**progress))
     })?;
     rows.into_pyarray(py).reshape([stop - start, bins])
+}
+
+/// What a render's pilots pick for `options` (`model = "auto"`: `transport::auto`;
+/// `rr_early_survival = "auto"` with `path`: `transport::roulette`), as options to pass
+/// on: `{"model": ..., "rr_early_survival": ...}`, each only where it was `auto`. The
+/// shards of one render or gradient then run with those values instead of each running
+/// the pilots (deterministic, so the same bits either way).
+#[pyfunction]
+#[pyo3(signature = (scene, **options))]
+pub fn resolve_pilots<'py>(
+    py: Python<'py>,
+    scene: &PyScene,
+    options: Option<&Bound<'py, PyDict>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let r = options::resolve(&scene.inner, options)?;
+    let (s, opts) = (&*r.scene, r.opts);
+    let (model, survival) = run_interruptible(py, r.threads, |_| {
+        let geom = scene.geometry();
+        let resolved = gradient_options(s, &geom, opts)?;
+        let frozen = roulette::resolved(s, &geom, &resolved, Pass::Render)?;
+        let survival = match (s.render.rr_early_survival, frozen.render.rr_early_survival) {
+            (EarlySurvival::Auto, EarlySurvival::Fixed(q)) => Some(q),
+            _ => None,
+        };
+        Ok((
+            (opts.model == Model::Auto).then_some(resolved.model),
+            survival,
+        ))
+    })?;
+    let d = PyDict::new(py);
+    if let Some(m) = model {
+        d.set_item("model", m.name())?;
+    }
+    if let Some(q) = survival {
+        d.set_item("rr_early_survival", q)?;
+    }
+    Ok(d)
 }
 
 /// The gradient's chunks as measurement ranges `[(start, stop), ...]`, in chunk order.

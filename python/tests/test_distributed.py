@@ -60,6 +60,30 @@ def test_render_and_grad_equal_the_local_ones_bit_for_bit(tmp_path: Path, captur
         assert gd["boundary_terms"] == g["boundary_terms"]
 
 
+def test_the_pilots_run_once_and_every_shard_plays_their_choice(tmp_path: Path):
+    # From 1024 spp path's roulette pilot runs (transport::roulette): umbra.distributed
+    # runs it once (_umbra.resolve_pilots) and hands its survival to the shards.
+    from umbra import _umbra
+    s = two_object_scene(tmp_path, "confocal", scan=4)
+    picked = _umbra.resolve_pilots(s, model="path", spp=1024, seed=3)
+    assert set(picked) == {"rr_early_survival"}, picked
+    q = picked["rr_early_survival"]
+    assert 0.2 <= q <= 1.0
+    assert _umbra.resolve_pilots(s, model="path", spp=1024, seed=3, rr_early_survival=0.5) == {}
+    assert _umbra.resolve_pilots(s, model="tri3") == {}
+    auto = _umbra.resolve_pilots(s, model="auto", spp=1024, seed=3)
+    assert auto["model"] in ("tri3", "mc3", "path"), auto
+    local = umbra.render(s, model="path", spp=1024, seed=3)
+    assert same_bits(local, umbra.render(s, model="path", spp=1024, seed=3, rr_early_survival=q))
+    far = ud.render(s, model="path", spp=1024, seed=3, shards=3, progress=False)
+    assert same_bits(local, far)
+    adj = (np.random.default_rng(2).standard_normal(local.shape) * 1e-3).astype(np.float32)
+    g = umbra.grad(s, adjoint=adj, model="path", spp=1024, seed=3)
+    gd = ud.grad(s, adj, model="path", spp=1024, seed=3, shards=2, progress=False)
+    for k in range(2):
+        assert same_bits(g["vertices"][k], gd["vertices"][k])
+
+
 def test_a_render_streams_into_an_npy_file(tmp_path: Path):
     s = two_object_scene(tmp_path, "exhaustive", scan=4)
     out = tmp_path / "h.npy"
@@ -187,9 +211,18 @@ def test_fit_many_fits_each_job_into_its_folder_and_resumes(tmp_path: Path):
     assert again["one"]["final_loss"] == r["one"]["final_loss"]
 
 
+def _fail_from_row_four(start: int, stop: int) -> None:  # runs in a Ray worker
+    if start >= 4:
+        raise RuntimeError("a shard's own failure")
+
+
 def test_errors_name_the_shard_and_the_argument(tmp_path: Path):
     s = two_object_scene(tmp_path, "confocal", scan=3)
-    with pytest.raises(umbra.UmbraError, match=r"render: shard \d+ \(measurements \d+\.\.\d+\)"):
+    # Options are checked once, before any shard runs (with the pilots, resolve_pilots).
+    with pytest.raises(umbra.UmbraError, match=r"model: 'bogus' is not one of"):
         ud.render(s, model="bogus", progress=False)
+    with pytest.raises(umbra.UmbraError,
+                       match=r"render: shard \d+ \(measurements [4-9]\.\.\d+\) failed: .*a shard's own failure"):
+        ud.render(s, model="tri3", shards=3, progress=False, _on_shard=_fail_from_row_four)
     with pytest.raises(ValueError, match=r"adjoint has shape \(2, 2\)"):
         ud.grad(s, np.zeros((2, 2)), progress=False)

@@ -175,6 +175,9 @@ def write_ytal_blocks(path: Union[str, "os.PathLike[str]"], scene: Scene,
     """A y-tal capture of ``scene`` from ``(first_row, rows)`` blocks in any order."""
 def render_measurements(scene: Scene, start: int, stop: int, **options: Any) -> np.ndarray:
     """Rows ``start..stop`` of the render (measurements in order), ``(stop - start, T)``."""
+def resolve_pilots(scene: Scene, **options: Any) -> Dict[str, Any]:
+    """What the pilots pick for these options (``model``, ``rr_early_survival``, each only
+    where it was ``"auto"``), as options for the shards of one render or gradient."""
 def grad_chunk_layout(scene: Scene) -> List[Tuple[int, int]]:
     """The gradient's chunks as measurement ranges, in chunk order."""
 def grad_chunks(scene: Scene, adjoint_rows: npt.ArrayLike, start: int, stop: int,

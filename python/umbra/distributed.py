@@ -204,6 +204,8 @@ def render(scene: "_umbra.Scene", *, spp: Optional[int] = None, model: Optional[
     shape = tuple(scene.shape)
     n, bins = int(np.prod(shape[:-1])), shape[-1]
     opts = _options(spp, model, seed, cpus_per_shard, options)
+    # The pilots (model = "auto", rr_early_survival = "auto") run here once, not per shard.
+    opts.update(_umbra.resolve_pilots(scene, **opts))
     parts = shards or 4 * _workers(ray)
     hdf5 = out is not None and _is_hdf5(out)
     if out is not None and not hdf5 and not str(out).endswith(".npy"):
@@ -273,6 +275,7 @@ def grad(scene: "_umbra.Scene", adjoint: Any, *, spp: Optional[int] = None,
     groups = _even(len(layout), shards or _workers(ray))
     rows = [(layout[a][0], layout[b - 1][1]) for a, b in groups]
     opts = _options(spp, model, seed, cpus_per_shard, options)
+    opts.update(_umbra.resolve_pilots(scene, **opts))
     task = _remote(ray, _grad_rows, cpus_per_shard)
     scene_ref = ray.put(scene)
     refs = [task.remote(scene_ref, flat[r[0]:r[1]], g, opts, _on_shard)

@@ -19,10 +19,10 @@ use super::{gradient, Gradient, Loss};
 use crate::error::Result;
 use crate::film::Film;
 use crate::geometry::SceneGeometry;
-use crate::scene::{EarlySurvival, Model, Scene};
+use crate::scene::{Model, Scene};
 use crate::transport::gate::Pass;
 use crate::transport::tri3::Tri3Mesh;
-use crate::transport::{render, tri3_exact, MeasurementCtx, RenderOptions, Renderer};
+use crate::transport::{render, roulette, tri3_exact, MeasurementCtx, RenderOptions};
 
 /// A parameter: a vertex coordinate or an object's albedo.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -68,17 +68,11 @@ impl Row {
 }
 
 /// `scene` with `path`'s roulette survival fixed at what the pilot picks for it
-/// (`transport::roulette`), so the renders of the moved scenes play the same roulette
+/// ([`roulette::resolved`]), so the renders of the moved scenes play the same roulette
 /// as the adjoint (common random numbers), as their sampling is frozen at `base`.
 fn frozen_roulette(scene: &Scene, opts: &RenderOptions) -> Result<Scene> {
-    let mut s = scene.clone();
-    if s.render.rr_early_survival == EarlySurvival::Auto {
-        let geom = SceneGeometry::build(scene);
-        let driver = Renderer::prepare(scene, &geom, opts, Pass::Gradient)?;
-        let q = driver.roulette.map_or(1.0, |r| r.survival);
-        s.render.rr_early_survival = EarlySurvival::Fixed(q);
-    }
-    Ok(s)
+    let geom = SceneGeometry::build(scene);
+    roulette::resolved(scene, &geom, opts, Pass::Gradient)
 }
 
 /// The scene's loss at its current parameters, sampling frozen at `base`.

@@ -19,7 +19,8 @@ use super::time_offset::Comparator;
 use crate::adjoint;
 use crate::geometry::{mesh::TriMesh, SceneGeometry};
 use crate::scene::{HiddenObject, Model, Reflectance, Scene};
-use crate::transport::{RenderOptions, Renderer};
+use crate::transport::gate::Pass;
+use crate::transport::{roulette, RenderOptions, Renderer};
 use glam::Vec3;
 use optim::{Evaluation, Mesh, MeshObjective};
 
@@ -175,6 +176,8 @@ impl UmbraObjective {
         if opts.model != Model::Tri3 {
             opts.seed = mesh_seed(self.options.seed, mesh);
         }
+        // The render and the gradient play one roulette: its pilot runs once.
+        let scene = roulette::resolved(&scene, &geom, &opts, Pass::Gradient)?;
         let raw = Renderer::new(&scene, &geom, &opts)?.render(None)?.data;
         Ok((scene, geom, opts, raw))
     }

@@ -281,16 +281,9 @@ impl SceneGeometry {
         super::ray_log::log(origin, dir, f32::INFINITY, false);
         let hidden = self.hidden_hit(origin, dir, self.eps, f32::INFINITY);
         let t_max = hidden.map_or(f32::INFINITY, |(t, _)| t);
-        if let Some(t) = self.wall.intersect(origin, dir, self.eps, t_max) {
-            if hidden.is_none_or(|(th, _)| t < th) {
-                return Some(Hit {
-                    t,
-                    p: origin + t * dir,
-                    n: self.wall_normal,
-                    kind: SurfaceKind::Wall,
-                    flat: u32::MAX,
-                    bary: [0.0; 2],
-                });
+        if let Some(hit) = self.wall_hit(origin, dir, t_max) {
+            if hidden.is_none_or(|(th, _)| hit.t < th) {
+                return Some(hit);
             }
         }
         let (t, flat) = hidden?;
@@ -304,6 +297,27 @@ impl SceneGeometry {
             kind: SurfaceKind::Hidden { object, tri: local },
             flat,
             bary: barycentric(&tri.v, p),
+        })
+    }
+
+    /// [`SceneGeometry::intersect`] against the wall alone: the continuation from a hidden
+    /// vertex in front of which no hidden triangle rises (`path_step::Onward::WallOnly`).
+    /// Analytic, so not in the ray log.
+    #[inline]
+    pub fn intersect_wall(&self, origin: Vec3, dir: Vec3) -> Option<Hit> {
+        self.wall_hit(origin, dir, f32::INFINITY)
+    }
+
+    #[inline]
+    fn wall_hit(&self, origin: Vec3, dir: Vec3, t_max: f32) -> Option<Hit> {
+        let t = self.wall.intersect(origin, dir, self.eps, t_max)?;
+        Some(Hit {
+            t,
+            p: origin + t * dir,
+            n: self.wall_normal,
+            kind: SurfaceKind::Wall,
+            flat: u32::MAX,
+            bary: [0.0; 2],
         })
     }
 

@@ -118,9 +118,10 @@ pub struct MeasurementCtx<'a> {
     /// their visibility rays.
     pub opl_min: f32,
     pub opl_max: f32,
-    /// `(2 d_w)²`, `d_w` the hidden geometry's gap to the wall plane
+    /// `2 d_w` and its square, `d_w` the hidden geometry's gap to the wall plane
     /// ([`SceneGeometry::wall_gap`]), and a floor (m) on the laser leg's OPL: what
     /// [`MeasurementCtx::past_film`] bounds the rest of a path with.
+    wall_gap2: f32,
     wall_gap2_sq: f32,
     laser_leg_floor: f32,
     /// `path`: survival of the Russian roulette before `rr_bounces`: the scene's fixed
@@ -168,6 +169,7 @@ impl<'a> MeasurementCtx<'a> {
             },
             opl_min: (film.start - margin) as f32,
             opl_max: (film.end() + margin) as f32,
+            wall_gap2: 2.0 * geom.wall_gap,
             wall_gap2_sq: (2.0 * geom.wall_gap).powi(2),
             rr_early_survival: match scene.render.rr_early_survival {
                 crate::scene::EarlySurvival::Fixed(q) => q,
@@ -209,18 +211,26 @@ impl<'a> MeasurementCtx<'a> {
     }
 
     /// Whether every contribution a path can still make from vertex `x` (OPL `opl`
-    /// walked to it, `x` on the wall if `on_wall`) lands at or past `opl_max`, so the
+    /// walked to it, `x` on the wall if `on_wall`, `wall_only` if its next vertex can only
+    /// be a wall point, `path_step::Onward::WallOnly`) lands at or past `opl_max`, so the
     /// walk can stop there: the film is the same, the work after it is not done. The
     /// rest of the path is at least `|x − x_l| − r` long (triangle inequality, `r` the
-    /// spot's radius); from a wall point, whose next vertex is hidden and at least
-    /// `d_w` in front of the wall's plane, at least `√((|x − x_l| − r)² + (2 d_w)²)`
-    /// (the shortest bounce off the plane `d_w` out). A relative margin of `1e-5` keeps
-    /// the test clear of `f32` rounding in the summed OPL.
+    /// spot's radius). From a wall point, whose next vertex is hidden and at least `d_w`
+    /// in front of the wall's plane, it is at least `√((|x − x_l| − r)² + (2 d_w)²)`
+    /// (the shortest bounce off the plane `d_w` out). From a hidden point `h` in front of
+    /// the wall whose next vertex is a wall point, with a point spot (a path closes only
+    /// by NEE from a hidden vertex), it is at least `h + 2 d_w`: to the wall, out to the
+    /// hidden geometry again, and back. A finite spot can close the path at that wall
+    /// point, so it keeps the first bound. A relative margin of `1e-5` keeps the test
+    /// clear of `f32` rounding in the summed OPL.
     #[inline]
-    pub fn past_film(&self, opl: f32, x: Vec3, on_wall: bool) -> bool {
-        let d = ((x - self.x_l).length() - self.scene.laser.spot_radius).max(0.0);
+    pub fn past_film(&self, opl: f32, x: Vec3, on_wall: bool, wall_only: bool) -> bool {
+        let r = self.scene.laser.spot_radius;
+        let d = ((x - self.x_l).length() - r).max(0.0);
         let rest = if on_wall {
             (d * d + self.wall_gap2_sq).sqrt()
+        } else if wall_only && r == 0.0 {
+            d.max(self.n_w.dot(x - self.x_l) + self.wall_gap2)
         } else {
             d
         };

@@ -22,10 +22,12 @@
 //!   constant survival `rr_early_survival` (1, no roulette, by default) after the
 //!   vertex's own contribution is recorded; `max_bounces` caps the length, `filter_bounces` keeps
 //!   only paths of one length (mitransient's `filter_bounces`, in our count), and
-//!   `discard_direct_paths` drops paths that never leave the wall. A hidden vertex from
-//!   which hidden-geometry sampling alone continues and can reach nothing in front of its
-//!   plane (a planar or convex object, the wall not sampled) ends the path before the
-//!   step is drawn (`path_step::can_continue`: those continuations have zero weight).
+//!   `discard_direct_paths` drops paths that never leave the wall. A hidden vertex in
+//!   front of whose plane no hidden triangle rises (a planar or convex object) continues
+//!   only to the wall: BSDF samples are traced against the wall alone, hidden-geometry
+//!   samples of hidden triangles end the path (their `cos θ_x ≤ 0`), and where the
+//!   techniques cannot reach the wall either, the path ends before the step is drawn
+//!   (`path_step::Onward`: those continuations have zero weight).
 //!   A walk also ends where all it could still record lands past the film's end
 //!   (`MeasurementCtx::past_film`, a lower bound on the rest of the path): the film is
 //!   the same bits, the steps after are not drawn.
@@ -69,7 +71,7 @@
 
 use super::path_replay::{Deferred, NeeTarget, PathReplay};
 use super::path_step::{
-    bsdf_share, can_continue, p_hg_at, step, survival, technique_probabilities, Step, Surf,
+    bsdf_share, onward, p_hg_at, step, survival, technique_probabilities, Onward, Step, Surf,
     WalkVertex,
 };
 pub use super::path_step::{BSDF_SHARE_AT_HIDDEN, BSDF_SHARE_AT_WALL};
@@ -245,9 +247,10 @@ pub(crate) fn trace<S: Sink>(
     let closing = if spot.is_point() { 2 } else { 1 };
     let mut first = Some(first);
     for j in 1u32.. {
+        let to = onward(ctx, &x);
         if j + closing > max_bounces
-            || !can_continue(ctx, &x)
-            || ctx.past_film(opl, x.p(), x.on_wall())
+            || to == Onward::Nowhere
+            || ctx.past_film(opl, x.p(), x.on_wall(), to == Onward::WallOnly)
         {
             break;
         }
@@ -262,7 +265,7 @@ pub(crate) fn trace<S: Sink>(
                 if j >= 2 {
                     scratch.later_steps[usize::from(j >= 3)] += 1;
                 }
-                step(ctx, &x.s, x.on_wall(), sampler.next_2d())
+                step(ctx, &x.s, x.on_wall(), to, sampler.next_2d())
             }
         };
         // Set aside, read only where needed (a finite spot; Russian roulette).

@@ -183,23 +183,43 @@ pub(crate) fn bsdf_share(
     }
 }
 
-/// Whether a continuation from `x` can have a nonzero weight. Not where only
-/// hidden-geometry sampling continues from a hidden vertex and every target lies on or
-/// behind the plane of its triangle on the side the path leaves from (a planar or convex
-/// object, the wall not among the targets, `geometry::blockers`'s [`Reach`]): every such
-/// sample has `cos θ_x ≤ 0` and [`step`] would reject it (up to rounding of `0/0` for a
-/// target in the plane), so the path ends without drawing it. The forward pass, its
-/// replay and the boundary terms' walks all ask here before each step.
+/// Where a continuation from a vertex can have a nonzero weight (`geometry::blockers`'s
+/// [`Reach`]: what rises more than `τ` in front of a hidden vertex's plane on the side the
+/// path leaves).
 ///
 /// [`Reach`]: crate::geometry::blockers::Reach
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Onward {
+    /// Hidden geometry or the wall: the full step.
+    Anywhere,
+    /// The wall only: no hidden triangle rises in front of the vertex's plane (a planar
+    /// or convex object facing the wall), so every hidden `y` has `cos θ_x ≤ 0` (up to
+    /// the rounding `τ` stands for, `0/0` in the plane). [`step`] then traces BSDF
+    /// samples against the wall alone and ends hidden-geometry samples of a hidden
+    /// triangle; [`MeasurementCtx::past_film`] knows the next vertex is a wall point.
+    WallOnly,
+    /// Nothing the techniques can reach (hidden-geometry sampling alone, with nothing in
+    /// front; or nothing at all in front, not even the wall): the path ends before the
+    /// step is drawn.
+    Nowhere,
+}
+
+/// [`Onward`] from `x`. The forward pass, its replay and the boundary terms' walks all
+/// ask here before each step, and draw it with the answer.
 #[inline]
-pub(crate) fn can_continue(ctx: &MeasurementCtx, x: &WalkVertex) -> bool {
-    let tech = &ctx.scene.render.techniques;
-    if x.on_wall() || tech.bsdf_sampling {
-        return true;
+pub(crate) fn onward(ctx: &MeasurementCtx, x: &WalkVertex) -> Onward {
+    if x.on_wall() {
+        return Onward::Anywhere;
     }
+    let tech = &ctx.scene.render.techniques;
     let reach = ctx.geom.reach_from(x.flat, x.n_side());
-    reach.hidden || (reach.wall && tech.hidden_geometry_includes_wall)
+    if reach.hidden {
+        Onward::Anywhere
+    } else if reach.wall && (tech.bsdf_sampling || tech.hidden_geometry_includes_wall) {
+        Onward::WallOnly
+    } else {
+        Onward::Nowhere
+    }
 }
 
 /// One sampled continuation.
@@ -220,16 +240,19 @@ pub(crate) struct Step {
     pub p_hg: f32,
 }
 
-/// Samples the vertex after `x` (on the wall if `x_on_wall`) from the pair `u_pick, u_2`
-/// (the pick rescaled drives the technique). `None` where the path ends: nothing hit, a
-/// blocked or backward sample, a grazing hit, or the back of a one-sided surface or of
+/// Samples the vertex after `x` (on the wall if `x_on_wall`; [`onward`] of it `to`) from
+/// the pair `u_pick, u_2` (the pick rescaled drives the technique). `None` where the path
+/// ends: nothing hit, a blocked or backward sample, a grazing hit, the back of a
+/// one-sided surface or of the wall, or a hidden target from a vertex that reaches only
 /// the wall.
 pub(crate) fn step(
     ctx: &MeasurementCtx,
     x: &Surf<f32>,
     x_on_wall: bool,
+    to: Onward,
     [u_pick, u_2]: [f32; 2],
 ) -> Option<Step> {
+    let wall_only = to == Onward::WallOnly;
     let (geom, tech, n_w) = (ctx.geom, &ctx.scene.render.techniques, ctx.n_w);
     let hg_dist = hidden_geometry_distribution(geom, tech);
     let n_hidden = geom.hidden.len() as u32;
@@ -241,11 +264,18 @@ pub(crate) fn step(
     let u_dir = [u_pick / c_bsdf.max(f32::MIN_POSITIVE), u_2];
     let (y_p, y_n, kind, flat, bary, sampled_tri) = if by_bsdf {
         let ds = cosine_hemisphere(x_n, u_dir);
-        let hit = geom.intersect(x_p, ds.dir)?;
+        let hit = if wall_only {
+            geom.intersect_wall(x_p, ds.dir)?
+        } else {
+            geom.intersect(x_p, ds.dir)?
+        };
         (hit.p, hit.n, hit.kind, hit.flat, hit.bary, None)
     } else {
         let u_hg = ((u_pick - c_bsdf) / c_hg).min(ONE_MINUS_EPS);
         let ts = hg_dist.sample([u_hg, u_2]);
+        if wall_only && ts.tri < n_hidden {
+            return None;
+        }
         let (y, n, kind, flat) = if ts.tri < n_hidden {
             let tri = &geom.hidden[ts.tri as usize];
             let (object, t) = geom.flat_to_local[ts.tri as usize];
@@ -359,12 +389,13 @@ pub(crate) fn walk(
     let (mut beta, mut opl) = (1.0f32, 0.0f32);
     for k in 1u32.. {
         let x = vertices[vertices.len() - 1];
-        if first_bounce + k > last_bounce || !can_continue(ctx, &x) {
+        let to = onward(ctx, &x);
+        if first_bounce + k > last_bounce || to == Onward::Nowhere {
             break;
         }
         let u = sampler.next_2d();
         let u_rr = sampler.reserve_2d();
-        let Some(s) = step(ctx, &x.s, x.on_wall(), u) else {
+        let Some(s) = step(ctx, &x.s, x.on_wall(), to, u) else {
             break;
         };
         beta *= s.factor;

@@ -33,10 +33,13 @@
 //! (gradients use the forward pass's choice), and paths of more than five bounces (taken
 //! as five).
 
+use super::gate::Pass;
 use super::path::PathScratch;
-use super::{run_samples, Contribution, MeasurementCtx, Sink};
+use super::{run_samples, Contribution, MeasurementCtx, RenderOptions, Renderer, Sink};
+use crate::error::Result;
 use crate::film::Film;
-use crate::scene::Model;
+use crate::geometry::SceneGeometry;
+use crate::scene::{EarlySurvival, Model, Scene};
 use rayon::prelude::*;
 
 /// Smallest survival the pilot picks.
@@ -226,4 +229,26 @@ pub fn pilot<'a>(
         survival: survival as f32,
         gain,
     })
+}
+
+/// `scene` with `render.rr_early_survival = "auto"` replaced by the survival the pilot
+/// picks for `opts` (what [`Renderer::prepare`] would play: `1` where the pilot does not
+/// run), and unchanged otherwise. Work made of several passes over one render's samples
+/// resolves it once and pays for one pilot, with the same bits: `umbra grad --target`
+/// (the render, then the adjoint), a fit's evaluation, finite differences (whose moved
+/// scenes then play the same roulette), Ray shards (`_umbra.resolve_early_survival`).
+pub fn resolved(
+    scene: &Scene,
+    geom: &SceneGeometry,
+    opts: &RenderOptions,
+    pass: Pass,
+) -> Result<Scene> {
+    let mut s = scene.clone();
+    let may_run = matches!(opts.model, Model::Path | Model::Auto);
+    if s.render.rr_early_survival == EarlySurvival::Auto && may_run {
+        let driver = Renderer::prepare(scene, geom, opts, pass)?;
+        let q = driver.roulette.map_or(1.0, |r| r.survival);
+        s.render.rr_early_survival = EarlySurvival::Fixed(q);
+    }
+    Ok(s)
 }

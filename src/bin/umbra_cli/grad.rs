@@ -106,6 +106,13 @@ pub fn grad(args: GradArgs) -> umbra::Result<()> {
                 ),
             ));
         }
+        // The render and the adjoint play one roulette: its pilot runs once.
+        let scene = umbra::transport::roulette::resolved(
+            &scene,
+            &geom,
+            &opts,
+            umbra::transport::gate::Pass::Gradient,
+        )?;
         let (value, adj) = if given {
             (0.0, array.data.clone())
         } else {
@@ -250,7 +257,7 @@ pub fn bench_grad(args: &BenchArgs) -> umbra::Result<()> {
             (Model::Mc3, 64),
             (Model::Mc3, 512),
             (Model::Path, 64),
-            // From 1024 spp the roulette's pilot runs in both passes (`transport::roulette`).
+            // From 1024 spp the roulette's pilot runs (`transport::roulette`), in each pass.
             (Model::Path, 1024),
             (Model::Tri3, 1),
         ] {

@@ -156,6 +156,16 @@ fn the_pilot_plays_the_roulette_where_it_pays_and_not_where_it_loses() {
     let mut early = s.clone();
     early.render.rr_bounces = 3;
     assert!(pilot(&early, 8192).is_none());
+    // The planar T letter: every walk ends at its first hidden vertex (the paths back off
+    // the wall land past the film), so there is nothing to thin and no pilot.
+    let t = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/validation/scenes/T.xml");
+    let d = [("max_depth", "6"), ("filter_bounces", "-1")].map(|(a, b)| (a.into(), b.into()));
+    let mut t = Scene::load_with_defines(&t, &d).unwrap();
+    t.render.techniques.bsdf_sampling = true;
+    assert!(pilot(&t, 8192).is_none());
+    // ... unless its film reaches the paths that come back (4 d_w = 3.6 m).
+    t.film.temporal_bins *= 2;
+    assert!(pilot(&t, 8192).is_some());
     // A fixed survival is not second-guessed.
     s.render.rr_early_survival = EarlySurvival::Fixed(1.0);
     assert!(pilot(&s, 8192).is_none());

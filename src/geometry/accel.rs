@@ -369,6 +369,14 @@ impl SceneGeometry {
             .reach(flat, n_side.dot(self.hidden[flat as usize].n) >= 0.0)
     }
 
+    /// Whether a continuation from some hidden triangle can meet another
+    /// ([`super::blockers::Reach`]); not for a planar or convex object, whose every
+    /// continuation meets the wall or nothing (`path_step::Onward`).
+    #[inline]
+    pub fn hidden_reaches_hidden(&self) -> bool {
+        self.blockers.some_side_reaches_hidden()
+    }
+
     /// Whether no hidden triangle can shadow a segment touching another, on either side
     /// (a planar or convex object): every blocker set is empty.
     #[inline]

@@ -227,6 +227,12 @@ impl BlockerSets {
         }
     }
 
+    /// Whether some side of some hidden triangle reaches another hidden triangle
+    /// ([`Reach::hidden`]); not for a planar or convex object.
+    pub fn some_side_reaches_hidden(&self) -> bool {
+        self.reach.iter().flatten().any(|r| r.hidden)
+    }
+
     /// Whether every set is [`Blockers::Nothing`] (no hidden triangle shadows another).
     pub fn everywhere_empty(&self) -> bool {
         self.everywhere_empty

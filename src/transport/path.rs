@@ -209,9 +209,14 @@ pub(crate) enum FirstStep {
     /// Drawn here by [`step`] from the sample's first pair.
     Draw,
     /// Drawn already from the sample's first pair, as [`step`] would (`path_lanes` draws
-    /// eight at a time): `None` where the path ends there.
-    Drawn(Option<Step>),
+    /// eight at a time): `None` where the path ends there. With it, where the spot is a
+    /// point, next-event estimation from the drawn vertex worked out as [`Spot::nee`]
+    /// would (`None` where `x_l` is behind either surface; the shadow ray is `trace`'s).
+    Drawn(Option<Step>, Option<NeeValue>),
 }
+
+/// [`Spot::nee`]'s value in `f32`: the contribution's weight and `|y − x_l|`.
+pub(crate) type NeeValue = Option<(f32, f32)>;
 
 /// [`sample`], the first step given or not.
 pub(crate) fn trace<S: Sink>(
@@ -246,6 +251,7 @@ pub(crate) fn trace<S: Sink>(
     // that can close no kept path is not traced (a three-bounce render stops at y_1).
     let closing = if spot.is_point() { 2 } else { 1 };
     let mut first = Some(first);
+    let mut given_nee = None;
     for j in 1u32.. {
         let to = onward(ctx, &x);
         if j + closing > max_bounces
@@ -257,8 +263,9 @@ pub(crate) fn trace<S: Sink>(
         // --- continuation: sample y_j by one of the two techniques -----------------
         // One stratified pair picks the technique and, rescaled, drives it.
         let st = match first.take() {
-            Some(FirstStep::Drawn(st)) => {
+            Some(FirstStep::Drawn(st, nee)) => {
                 sampler.reserve_2d();
+                given_nee = nee;
                 st
             }
             _ => {
@@ -278,6 +285,8 @@ pub(crate) fn trace<S: Sink>(
         beta *= st.factor;
         opl += st.dist;
         let y = st.y;
+        // The first vertex's NEE value if `path_lanes` worked it out (only ever for y_1).
+        let lane_nee = given_nee.take();
         if replay.is_some() {
             scratch.deferred.push(Deferred::Step(st, techniques));
         }
@@ -317,7 +326,11 @@ pub(crate) fn trace<S: Sink>(
                 } else {
                     p_hg_at(ctx, u32::MAX, || geom.wall_tri_of(x_l))
                 };
-                if let Some((weight, r_l)) = spot.nee(&y.s, beta, x_l, n_w, from_y, p_hg_l) {
+                let nee = match lane_nee {
+                    Some(v) => v,
+                    None => spot.nee(&y.s, beta, x_l, n_w, from_y, p_hg_l),
+                };
+                if let Some((weight, r_l)) = nee {
                     let total_opl = opl + r_l + ctx.opl_laser_leg(x_l);
                     let in_film = total_opl >= ctx.opl_min && total_opl < ctx.opl_max;
                     if in_film && weight > 0.0 && !ctx.occluded_touching(y.p(), x_l, y.flat) {

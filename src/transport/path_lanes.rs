@@ -18,8 +18,10 @@
 //! drawn `Step` (an area-sampled point keeps its barycentrics), as it starts from the
 //! step `trace` draws, so the derivatives are the scalar [`super::path::sample`]'s.
 
-use super::lanes::{albedos, at, dot, gather3, lanes, minus_const, points, splat, F, LANES};
-use super::path::{self, FirstStep, PathScratch};
+use super::lanes::{
+    albedos, at, dot, from_const, gather3, lanes, minus_const, points, splat, F, LANES,
+};
+use super::path::{self, FirstStep, NeeValue, PathScratch};
 use super::path_step::{
     hidden_geometry_distribution, technique_probabilities, Step, Surf, WalkVertex,
 };
@@ -87,6 +89,7 @@ fn first_steps(ctx: &MeasurementCtx, seeds: &StreamSeeds, first: u32) -> [FirstS
     let (c_bsdf, c_hg) = techniques;
     let x = WalkVertex::wall(ctx, ctx.x_s);
     let (x_p, x_n) = (ctx.x_s, ctx.n_w);
+    let point_spot = ctx.scene.laser.spot_radius <= 0.0;
 
     let [u_pick, u_2] = seeds.pair_lanes::<LANES>(0, first);
     let u_hg = lanes(|k| {
@@ -141,13 +144,17 @@ fn first_steps(ctx: &MeasurementCtx, seeds: &StreamSeeds, first: u32) -> [FirstS
     });
     let factor = lanes(|k| x.s.f * cos_x[k] * cos_y[k] / (d2[k] * q[k]));
     let albedo = albedos(&tris, [ts.b1, ts.b2], b0);
+    let back: [bool; LANES] = std::array::from_fn(|k| n_dot[k] >= 0.0);
+    let n_side: [F; 3] =
+        std::array::from_fn(|i| lanes(|k| if back[k] { -n[i][k] } else { n[i][k] }));
+    let nee = point_spot.then(|| nee_lanes(ctx, &y, &n_side, factor, albedo));
 
     std::array::from_fn(|k| {
         if !drawn[k] {
             return FirstStep::Draw;
         }
         if !forward[k] {
-            return FirstStep::Drawn(None);
+            return FirstStep::Drawn(None, None);
         }
         let blocked = match &sides {
             Some((side, clear)) => {
@@ -156,34 +163,64 @@ fn first_steps(ctx: &MeasurementCtx, seeds: &StreamSeeds, first: u32) -> [FirstS
             None => ctx.occluded_touching(x_p, at(&y, k), flat[k]),
         };
         if blocked {
-            return FirstStep::Drawn(None);
+            return FirstStep::Drawn(None, None);
         }
         // Which side of y light arrives on; a one-sided surface hit from behind is black.
-        let y_n = at(&n, k);
-        let back = n_dot[k] >= 0.0;
-        if back && !tris[k].two_sided {
-            return FirstStep::Drawn(None);
+        if back[k] && !tris[k].two_sided {
+            return FirstStep::Drawn(None, None);
         }
         let (object, tri) = geom.flat_to_local[flat[k] as usize];
-        FirstStep::Drawn(Some(Step {
-            y: WalkVertex {
-                s: Surf {
-                    p: at(&y, k).to_array(),
-                    n_side: if back { -y_n } else { y_n }.to_array(),
-                    f: albedo[k] * FRAC_1_PI,
+        FirstStep::Drawn(
+            Some(Step {
+                y: WalkVertex {
+                    s: Surf {
+                        p: at(&y, k).to_array(),
+                        n_side: at(&n_side, k).to_array(),
+                        f: albedo[k] * FRAC_1_PI,
+                    },
+                    albedo: albedo[k],
+                    flat: flat[k],
+                    bary: [ts.b1[k], ts.b2[k]],
                 },
-                albedo: albedo[k],
-                flat: flat[k],
-                bary: [ts.b1[k], ts.b2[k]],
-            },
-            kind: SurfaceKind::Hidden { object, tri },
-            by_bsdf: false,
-            u_dir: [u_pick[k] / c_bsdf.max(f32::MIN_POSITIVE), u_2[k]],
-            back,
-            factor: factor[k],
-            dist: dist[k],
-            q: q[k],
-            p_hg: p_hg[k],
-        }))
+                kind: SurfaceKind::Hidden { object, tri },
+                by_bsdf: false,
+                u_dir: [u_pick[k] / c_bsdf.max(f32::MIN_POSITIVE), u_2[k]],
+                back: back[k],
+                factor: factor[k],
+                dist: dist[k],
+                q: q[k],
+                p_hg: p_hg[k],
+            }),
+            nee.map(|v| v[k]),
+        )
     })
+}
+
+/// `Spot::nee` from the drawn points `y` (sides `n_side`, BRDF `albedo/π`, throughput
+/// `1 · factor`) to a point spot, in lanes, operation for operation: `to_l = x_l − y`,
+/// `r = √(to_l · to_l)`, `cos θ_y = n_side · to_l / r`, `cos θ_l = −(n_w · to_l) / r`, and
+/// where both are positive `β f G P ρ_w/π` with `G = cos θ_y cos θ_l / r²`.
+#[inline(always)]
+fn nee_lanes(
+    ctx: &MeasurementCtx,
+    y: &[F; 3],
+    n_side: &[F; 3],
+    factor: F,
+    albedo: F,
+) -> [NeeValue; LANES] {
+    let to_l = from_const(ctx.x_l, y);
+    let r2 = dot(&to_l, &to_l);
+    let r = r2.map(f32::sqrt);
+    let n_side_dot = dot(n_side, &to_l);
+    let wall_dot = dot(&splat(ctx.n_w), &to_l);
+    let cos_y = lanes(|k| n_side_dot[k] / r[k]);
+    let cos_wall = lanes(|k| -wall_dot[k] / r[k]);
+    // `Spot::emitted` of a point spot.
+    let emitted = ctx.f_wall * ctx.power;
+    let weight = lanes(|k| {
+        let beta = 1.0f32 * factor[k];
+        let g = cos_y[k] * cos_wall[k] / r2[k];
+        beta * (albedo[k] * FRAC_1_PI) * g * emitted
+    });
+    std::array::from_fn(|k| (!(cos_y[k] <= 0.0 || cos_wall[k] <= 0.0)).then_some((weight[k], r[k])))
 }

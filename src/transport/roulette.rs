@@ -23,7 +23,9 @@
 //! `q²`; `q` is the best of a grid over `[MIN_SURVIVAL, 1]`, and 1 unless it is predicted
 //! to gain at least [`MIN_GAIN`]. The pilot is `2/8` of a render on `1/16` of the
 //! measurements (1.6 % of the render); below [`MIN_PILOT_SPP`]` · 8` spp it is not run
-//! and `q = 1`. Deterministic: fixed seeds, fixed order
+//! and `q = 1`, nor where no path can record anything after its first hidden vertex
+//! (a planar or convex object whose paths back off the wall land past the film, as the T
+//! letter's). [`resolved`] fixes its choice in the scene for work of several passes. Deterministic: fixed seeds, fixed order
 //! (measurements in parallel, summed in their order).
 //!
 //! Measured (BENCHMARKS.md, "Russian roulette before rr_bounces"; 8 renders each against
@@ -93,7 +95,7 @@ pub fn pilot<'a>(
     rr_bounces: u32,
     ctx: impl Fn(usize) -> MeasurementCtx<'a> + Sync,
 ) -> Option<RoulettePilot> {
-    if spp / 8 < MIN_PILOT_SPP || rr_bounces <= 3 {
+    if spp / 8 < MIN_PILOT_SPP || rr_bounces <= 3 || !longer_paths_in_film(&ctx(0)) {
         return None;
     }
     // A power of two: its first quarter is a Sobol' prefix of its own.
@@ -229,6 +231,18 @@ pub fn pilot<'a>(
         survival: survival as f32,
         gain,
     })
+}
+
+/// Whether a path can record anything after its first hidden vertex: not where no
+/// continuation from the hidden geometry meets hidden geometry (a planar or convex
+/// object, `path_step::Onward`), the spot is a point, and a path back off the wall is
+/// longer than the film reaches: `x_s → y_1 → wall → y_2 → x_l` is at least `4 d_w`
+/// ([`MeasurementCtx::past_film`] ends every walk at `y_1` then, and the roulette would
+/// have nothing to thin). The T letter's 4 d_w is 3.6 m against a film ending at 3.14 m.
+fn longer_paths_in_film(ctx: &MeasurementCtx) -> bool {
+    ctx.geom.hidden_reaches_hidden()
+        || ctx.scene.laser.spot_radius > 0.0
+        || 4.0 * ctx.geom.wall_gap * (1.0 - 1e-5) < ctx.opl_max
 }
 
 /// `scene` with `render.rr_early_survival = "auto"` replaced by the survival the pilot

@@ -332,6 +332,14 @@ pub fn grad_timing(scene: &Scene, model: Model, spp: u32, reps: usize) -> Result
     };
     // The check's adjoint (L2 against the moved scene); setup's gradient is the warm-up.
     let (_, adj, ..) = check::setup(scene, &opts)?;
+    // Both passes at the roulette survival the pilot picks, neither paying for the pilot
+    // (as `umbra grad --target` runs it once for both).
+    let scene = &crate::transport::roulette::resolved(
+        scene,
+        &geom,
+        &opts,
+        crate::transport::gate::Pass::Gradient,
+    )?;
     let r = Renderer::new(scene, &geom, &opts)?;
     let mut interior_scene = scene.clone();
     interior_scene.render.boundary_terms = false;

@@ -69,7 +69,7 @@
 //! laser sampling on (then those paths carry the small MIS share `q/(q + 1/(π r²))`),
 //! or BSDF sampling off (the gate says so).
 
-use super::path_replay::{Deferred, NeeTarget, PathReplay};
+use super::path_replay::{Deferred, NeeTarget, PathReplay, TriCache};
 use super::path_step::{
     bsdf_share, onward, p_hg_at, step, survival, technique_probabilities, Onward, Step, Surf,
     WalkVertex,
@@ -100,6 +100,8 @@ pub struct PathScratch {
     pub later_steps: [u64; 2],
     /// The replay's actions not yet applied ([`Deferred`]; one path's, reused).
     deferred: Vec<Deferred>,
+    /// The replay's triangles in dual numbers ([`TriCache`]).
+    tri_cache: TriCache,
 }
 
 /// `w_bsdf` of the continuation from the sensor point to hidden point `y` (on hidden
@@ -301,7 +303,7 @@ pub(crate) fn trace<S: Sink>(
                 let total_opl = opl + ctx.opl_laser_leg(y.p());
                 if total_opl >= ctx.opl_min && total_opl < ctx.opl_max {
                     let grad = replay.as_mut().map(|rp| {
-                        rp.catch_up(ctx, &mut scratch.deferred);
+                        rp.catch_up(ctx, &mut scratch.deferred, &mut scratch.tri_cache);
                         rp.emission(ctx, &spot)
                     });
                     emit(
@@ -335,7 +337,7 @@ pub(crate) fn trace<S: Sink>(
                     let in_film = total_opl >= ctx.opl_min && total_opl < ctx.opl_max;
                     if in_film && weight > 0.0 && !ctx.occluded_touching(y.p(), x_l, y.flat) {
                         let grad = replay.as_mut().and_then(|rp| {
-                            rp.catch_up(ctx, &mut scratch.deferred);
+                            rp.catch_up(ctx, &mut scratch.deferred, &mut scratch.tri_cache);
                             let at = NeeTarget {
                                 x_l,
                                 from_y,

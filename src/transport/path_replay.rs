@@ -76,8 +76,15 @@ impl<const N: usize> Replay<N> {
         }
     }
 
-    /// Triangle `flat` in dual numbers (its own slots; constants once the slots are full).
-    fn triangle(&mut self, ctx: &MeasurementCtx, flat: u32) -> TriParams<Dual<f32, N>> {
+    /// Triangle `flat` as the steps use it: in dual numbers in its own slots (constants
+    /// once the slots are full), with its normal, area and area sampling's density;
+    /// `cached` where a path on one triangle has it worked out already ([`TriCache`]).
+    fn triangle(
+        &mut self,
+        ctx: &MeasurementCtx,
+        flat: u32,
+        cached: Option<&TriReplay<N>>,
+    ) -> TriReplay<N> {
         let tri = &ctx.geom.hidden[flat as usize];
         let g = match self.groups[..self.used].iter().position(|&f| f == flat) {
             Some(g) => g,
@@ -89,16 +96,20 @@ impl<const N: usize> Replay<N> {
             None => {
                 self.truncated = true;
                 let c = TriParams::constant(tri);
-                return TriParams {
+                let t = TriParams {
                     v: c.v.map(|v| v.map(|x| Dual::<f32, N>::c(x as f64))),
                     albedo: c.albedo.map(|a| Dual::<f32, N>::c(a as f64)),
                     two_sided: c.two_sided,
                     retro: c.retro,
                     retro_falloff: c.retro_falloff,
                 };
+                return TriReplay::of(ctx, flat, t);
             }
         };
-        TriParams::variables_at(tri, 12 * g)
+        match cached {
+            Some(c) if g == 0 => *c,
+            _ => TriReplay::of(ctx, flat, TriParams::variables_at(tri, 12 * g)),
+        }
     }
 
     /// The forward pass's step `st` from the replay's vertex, in dual numbers: an
@@ -106,7 +117,13 @@ impl<const N: usize> Replay<N> {
     /// is the ray's intersection with the plane of what it hit (it moves along the ray,
     /// whose direction follows `x`'s normal); then the same [`continuation`] as the
     /// forward pass, with area sampling's density over the current triangle area.
-    fn step(&mut self, ctx: &MeasurementCtx, st: &Step, techniques: (f32, f32)) {
+    fn step(
+        &mut self,
+        ctx: &MeasurementCtx,
+        st: &Step,
+        techniques: (f32, f32),
+        cached: Option<&TriReplay<N>>,
+    ) {
         let on_ray = |x: &Surf<Dual<f32, N>>, n: V3<Dual<f32, N>>, on_plane: V3<Dual<f32, N>>| {
             let (d, _) = cosine_dir(x.n_side, st.u_dir);
             let t = dual::dot(n, dual::sub(on_plane, x.p)) / dual::dot(n, d);
@@ -123,8 +140,7 @@ impl<const N: usize> Replay<N> {
             let f = Dual::<f32, N>::c(ctx.f_wall as f64);
             (y, n, n, f, Dual::<f32, N>::c(st.p_hg as f64))
         } else {
-            let tri = self.triangle(ctx, st.y.flat);
-            let (n, area) = tri.normal_area();
+            let TriReplay { tri, n, p_hg } = self.triangle(ctx, st.y.flat, cached);
             let (y, b) = if st.by_bsdf {
                 let y = on_ray(&self.x, n, tri.v[0]);
                 (y, tri.barycentric_of(y))
@@ -134,8 +150,6 @@ impl<const N: usize> Replay<N> {
                     st.y.bary.map(|b| Dual::<f32, N>::c(b as f64)),
                 )
             };
-            let hg = hidden_geometry_distribution(ctx.geom, &ctx.scene.render.techniques);
-            let p_hg = Dual::<f32, N>::c(hg.prob(st.y.flat) as f64) / area;
             let n_side = if st.back { n.map(|c| -c) } else { n };
             (y, n, n_side, tri.albedo_at_r(b).s(FRAC_1_PI), p_hg)
         };
@@ -146,10 +160,11 @@ impl<const N: usize> Replay<N> {
         self.x = Surf { p: y, n_side, f };
     }
 
-    /// Applies one deferred action.
-    fn apply(&mut self, ctx: &MeasurementCtx, d: Deferred) {
+    /// Applies one deferred action (`cached`: the step's triangle, if it has one and
+    /// [`TriCache`] has it).
+    fn apply(&mut self, ctx: &MeasurementCtx, d: Deferred, cached: Option<&TriReplay<N>>) {
         match d {
-            Deferred::Step(st, techniques) => self.step(ctx, &st, techniques),
+            Deferred::Step(st, techniques) => self.step(ctx, &st, techniques, cached),
             Deferred::Survive(wall_albedo) => {
                 // The albedo in dual numbers: ρ = π f at a hidden vertex.
                 let albedo = match wall_albedo {
@@ -235,18 +250,26 @@ impl PathReplay {
 
     /// Applies the actions deferred so far (`deferred` is left empty), widening before
     /// the first step onto a second hidden triangle.
-    pub(super) fn catch_up(&mut self, ctx: &MeasurementCtx, deferred: &mut Vec<Deferred>) {
+    pub(super) fn catch_up(
+        &mut self,
+        ctx: &MeasurementCtx,
+        deferred: &mut Vec<Deferred>,
+        cache: &mut TriCache,
+    ) {
         for d in deferred.drain(..) {
+            let mut onto = None;
             if let (PathReplay::One(r), Deferred::Step(st, _)) = (&*self, &d) {
-                let new_triangle =
-                    st.kind != SurfaceKind::Wall && !r.groups[..r.used].contains(&st.y.flat);
-                if new_triangle && r.used == 1 {
-                    *self = PathReplay::Many(r.widen());
+                if st.kind != SurfaceKind::Wall {
+                    if r.used == 1 && r.groups[0] != st.y.flat {
+                        *self = PathReplay::Many(r.widen());
+                    } else {
+                        onto = Some(st.y.flat);
+                    }
                 }
             }
             match self {
-                PathReplay::One(r) => r.apply(ctx, d),
-                PathReplay::Many(r) => r.apply(ctx, d),
+                PathReplay::One(r) => r.apply(ctx, d, onto.map(|f| cache.get(ctx, f))),
+                PathReplay::Many(r) => r.apply(ctx, d, None),
             }
         }
     }
@@ -264,6 +287,119 @@ impl PathReplay {
         match self {
             PathReplay::One(r) => r.nee(ctx, spot, at),
             PathReplay::Many(r) => r.nee(ctx, spot, at),
+        }
+    }
+}
+
+/// A hidden triangle as a step onto it uses it: its corners and albedos in dual numbers,
+/// its unit normal, and area sampling's density `prob / A` over its current area.
+#[derive(Clone, Copy)]
+pub(super) struct TriReplay<const N: usize> {
+    tri: TriParams<Dual<f32, N>>,
+    n: V3<Dual<f32, N>>,
+    p_hg: Dual<f32, N>,
+}
+
+impl<const N: usize> TriReplay<N> {
+    fn of(ctx: &MeasurementCtx, flat: u32, tri: TriParams<Dual<f32, N>>) -> Self {
+        let (n, area) = tri.normal_area();
+        let hg = hidden_geometry_distribution(ctx.geom, &ctx.scene.render.techniques);
+        let p_hg = Dual::<f32, N>::c(hg.prob(flat) as f64) / area;
+        TriReplay { tri, n, p_hg }
+    }
+}
+
+/// The triangles a thread's one-triangle replays ([`Replay<16>`], the triangle in slots
+/// 0..12) stepped onto last, worked out once instead of per step: the same operations on
+/// the same inputs, so the same bits. Direct-mapped by flat index ([`TRI_CACHE`] entries,
+/// ~1 KB each); an entry is used only while its inputs are the triangle's (the bits of
+/// its corners, albedos and sampling probability, and its flags), whatever scene the
+/// scratch is used with next.
+#[derive(Default)]
+pub struct TriCache {
+    entries: Vec<Option<(TriKey, TriReplay<16>)>>,
+}
+
+/// What [`TriReplay::of`] reads: flat index, corners and albedos, sampling probability,
+/// one-/two-sided and retroreflective flags and falloff (as bits).
+type TriKey = (u32, [u32; 14], [bool; 2]);
+
+/// Entries of a [`TriCache`].
+pub const TRI_CACHE: usize = 128;
+
+impl TriCache {
+    fn get(&mut self, ctx: &MeasurementCtx, flat: u32) -> &TriReplay<16> {
+        if self.entries.is_empty() {
+            self.entries = vec![None; TRI_CACHE];
+        }
+        let tri = &ctx.geom.hidden[flat as usize];
+        let hg = hidden_geometry_distribution(ctx.geom, &ctx.scene.render.techniques);
+        let [a, b, c] = tri.v;
+        let bits = [
+            a.x,
+            a.y,
+            a.z,
+            b.x,
+            b.y,
+            b.z,
+            c.x,
+            c.y,
+            c.z,
+            tri.albedo[0],
+            tri.albedo[1],
+            tri.albedo[2],
+            hg.prob(flat),
+            tri.retro_falloff,
+        ]
+        .map(f32::to_bits);
+        let key = (flat, bits, [tri.two_sided, tri.retro]);
+        let slot = &mut self.entries[flat as usize % TRI_CACHE];
+        if slot.as_ref().is_none_or(|(k, _)| *k != key) {
+            let replay = TriReplay::of(ctx, flat, TriParams::variables_at(tri, 0));
+            *slot = Some((key, replay));
+        }
+        &slot.as_ref().expect("filled above").1
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::film::Film;
+    use crate::geometry::SceneGeometry;
+
+    /// The bits of what a step reads from a triangle.
+    fn bits(t: &TriReplay<16>) -> Vec<u32> {
+        let duals = t.tri.v.iter().flatten().chain(&t.tri.albedo).chain(&t.n);
+        duals
+            .chain(std::iter::once(&t.p_hg))
+            .flat_map(|d| std::iter::once(d.v).chain(d.d))
+            .map(f32::to_bits)
+            .collect()
+    }
+
+    /// A cached triangle is what the step would work out, also when one scratch's cache
+    /// meets another scene whose triangle of the same index moved (or another triangle of
+    /// the same slot).
+    #[test]
+    fn the_cache_gives_what_the_step_computes_whatever_scene_comes_next() {
+        let a = crate::scene::default::default_scene().unwrap();
+        let mut b = a.clone();
+        let v = b.objects[0].mesh.triangles[0][0] as usize;
+        b.objects[0].mesh.positions[v].x += 0.01;
+        let mut cache = TriCache::default();
+        for scene in [&a, &b, &a] {
+            let geom = SceneGeometry::build(scene);
+            let film = Film::new(&scene.film);
+            let ctx = MeasurementCtx::new(scene, &geom, &film, 0);
+            for flat in [0, TRI_CACHE as u32, 1, 0] {
+                if flat as usize >= geom.hidden.len() {
+                    continue;
+                }
+                let tri = &geom.hidden[flat as usize];
+                let fresh = TriReplay::<16>::of(&ctx, flat, TriParams::variables_at(tri, 0));
+                assert_eq!(bits(cache.get(&ctx, flat)), bits(&fresh), "triangle {flat}");
+            }
         }
     }
 }

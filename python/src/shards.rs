@@ -14,9 +14,8 @@ use pyo3::types::{PyDict, PyList};
 use umbra::adjoint::{self, ChunkGrad};
 use umbra::geometry::SceneGeometry;
 use umbra::scene::{EarlySurvival, Model, Scene};
-use umbra::transport::gate::Pass;
 use umbra::transport::mc3::TRI_PARAMS;
-use umbra::transport::{roulette, RenderOptions, Renderer};
+use umbra::transport::{RenderOptions, Renderer};
 
 /// Rows `start..stop` of the render (measurements in the render's order), shape
 /// `(stop - start, T)`.
@@ -53,19 +52,23 @@ pub fn resolve_pilots<'py>(
 ) -> PyResult<Bound<'py, PyDict>> {
     let r = options::resolve(&scene.inner, options)?;
     let (s, opts) = (&*r.scene, r.opts);
-    let (model, survival) = run_interruptible(py, r.threads, |_| {
-        let geom = scene.geometry();
-        let resolved = gradient_options(s, &geom, opts)?;
-        let frozen = roulette::resolved(s, &geom, &resolved, Pass::Render)?;
-        let survival = match (s.render.rr_early_survival, frozen.render.rr_early_survival) {
-            (EarlySurvival::Auto, EarlySurvival::Fixed(q)) => Some(q),
-            _ => None,
+    let auto_survival = s.render.rr_early_survival == EarlySurvival::Auto;
+    let (model, survival) =
+        if opts.model == Model::Auto || (opts.model == Model::Path && auto_survival) {
+            // One driver: it resolves the model and, for `path`, runs the roulette's pilot.
+            run_interruptible(py, r.threads, |_| {
+                let geom = scene.geometry();
+                let driver = Renderer::new(s, &geom, &opts)?;
+                let survival = (auto_survival && driver.model == Model::Path)
+                    .then(|| driver.roulette.map_or(1.0, |p| p.survival));
+                Ok((
+                    (opts.model == Model::Auto).then_some(driver.model),
+                    survival,
+                ))
+            })?
+        } else {
+            (None, None)
         };
-        Ok((
-            (opts.model == Model::Auto).then_some(resolved.model),
-            survival,
-        ))
-    })?;
     let d = PyDict::new(py);
     if let Some(m) = model {
         d.set_item("model", m.name())?;

@@ -59,8 +59,10 @@ def test_options_override_the_scene_and_equal_the_cli(tmp_path: Path, umbra_bin:
     # All bounces kept (the file keeps only three): max_depth then matters where longer
     # paths exist. With the file's techniques (laser + hidden-geometry sampling, the wall
     # not sampled) the planar letter has none: a path cannot leave it for the wall, so
-    # max_depth is compared with BSDF sampling on (letter -> wall -> letter paths).
-    allb = umbra.load_scene(T_XML, scan_x=6, scan_y=6, bins=128, spp=32, filter_bounces=-1)
+    # max_depth is compared with BSDF sampling on (letter -> wall -> letter paths). Those
+    # are 3.6 m or longer (four times the letter's gap to the wall): the film must reach
+    # them (512 bins of 6 mm from 1.6 m: to 4.67 m), else they are not even traced.
+    allb = umbra.load_scene(T_XML, scan_x=6, scan_y=6, bins=512, spp=32, filter_bounces=-1)
     base1 = umbra.render(allb, model="path", seed=1)
     with_bsdf = dict(bsdf_sampling=True)
     base_bsdf = umbra.render(allb, model="path", seed=1, **with_bsdf)
@@ -74,7 +76,7 @@ def test_options_override_the_scene_and_equal_the_cli(tmp_path: Path, umbra_bin:
         flags = [f"--{k.replace('_', '-')}={str(v).lower()}" for k, v in kw.items()]
         out = tmp_path / "h.npy"
         subprocess.run([exe, "render", str(T_XML), "-D", "scan_x=6", "-D", "scan_y=6", "-D",
-                        "bins=128", "-D", "spp=32", "-D", "filter_bounces=-1", "--model", "path",
+                        "bins=512", "-D", "spp=32", "-D", "filter_bounces=-1", "--model", "path",
                         "--seed", "1", *flags,
                         "-o", str(out), "--no-preview", "-q"], check=True, capture_output=True)
         assert np.array_equal(h, np.load(out)), kw

@@ -96,6 +96,11 @@ def test_a_render_streams_into_an_npy_file(tmp_path: Path):
         ud.render(s, model="tri3", out=str(tmp_path / "h.exr"))
 
 
+def _fail_from_row_four(start: int, stop: int) -> None:  # runs in a Ray worker
+    if start >= 4:
+        raise RuntimeError("a shard's own failure")
+
+
 @pytest.mark.parametrize("capture", ["confocal", "exhaustive"])
 def test_a_render_streams_into_a_ytal_capture_that_ytal_reads(tmp_path: Path, capture: str):
     python = require_ytal()
@@ -110,7 +115,7 @@ def test_a_render_streams_into_a_ytal_capture_that_ytal_reads(tmp_path: Path, ca
     # A failing shard: its error, and no file nor temporary left.
     out2 = tmp_path / "bad.h5"
     with pytest.raises(umbra.UmbraError, match=r"render: shard \d+ \(measurements \d+\.\.\d+\)"):
-        ud.render(s, model="bogus", out=str(out2), progress=False)
+        ud.render(s, model="tri3", out=str(out2), progress=False, _on_shard=_fail_from_row_four)
     assert not out2.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".bad.h5")]
 
 
@@ -209,11 +214,6 @@ def test_fit_many_fits_each_job_into_its_folder_and_resumes(tmp_path: Path):
         assert (tmp_path / "fits" / n / "checkpoint").is_dir()
     again = ud.fit_many({"one": job}, str(tmp_path / "fits"), progress=False)
     assert again["one"]["final_loss"] == r["one"]["final_loss"]
-
-
-def _fail_from_row_four(start: int, stop: int) -> None:  # runs in a Ray worker
-    if start >= 4:
-        raise RuntimeError("a shard's own failure")
 
 
 def test_errors_name_the_shard_and_the_argument(tmp_path: Path):

@@ -195,9 +195,9 @@ mod tests {
         };
         let f = rays(&scene, &opts, 1).unwrap();
         assert!(f.closest_rays > 0 && f.shadow_rays > 0, "{f:?}");
-        // About 0.6 per sample: a path's shadow ray to the spot, its first step's ray or
-        // shadow ray, and rarely more; continuations from the letter meet only the wall,
-        // analytically (`SceneGeometry::intersect_wall`, not logged).
+        // About 0.6 per sample at 4 spp: the visible legs' two shadow rays per
+        // measurement (0.5) and the first steps' rays; continuations from the letter meet
+        // only the wall, analytically (`SceneGeometry::intersect_wall`, not logged).
         assert!(
             f.rays_per_sample() > 0.25 && f.rays_per_sample() < 10.0,
             "{f:?}"

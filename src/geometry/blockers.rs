@@ -27,7 +27,8 @@
 //! only the triangles of `B(t, +)`, with the same `τ`: a triangle rising at most `τ`
 //! above `P` (rounding of a planar mesh) counts as in the plane, where both cosines of a
 //! continuation are rounding of `0/0` (dropping those moves T.xml's multi-bounce render
-//! by 5e-10 relative L2).
+//! by 5e-10 relative L2). A side that reaches no hidden triangle continues to the wall
+//! only (`path_step::Onward::WallOnly`: BSDF rays traced against the wall alone).
 
 use super::packet::{self, TriPacket};
 use glam::Vec3;

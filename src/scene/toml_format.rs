@@ -468,7 +468,9 @@ pub fn parse(
         rr_bounces: r.rr_bounces,
         rr_early_survival: match &r.rr_early_survival {
             None => EarlySurvival::Auto,
-            Some(SurvivalT::Number(q)) => EarlySurvival::Fixed(*q as f32),
+            Some(SurvivalT::Number(q)) => {
+                EarlySurvival::fixed(*q as f32).map_err(|e| field("render.rr_early_survival", e))?
+            }
             Some(SurvivalT::Word(w)) => {
                 EarlySurvival::parse(w).map_err(|e| field("render.rr_early_survival", e))?
             }

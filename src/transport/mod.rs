@@ -118,11 +118,10 @@ pub struct MeasurementCtx<'a> {
     /// their visibility rays.
     pub opl_min: f32,
     pub opl_max: f32,
-    /// `2 d_w` and its square, `d_w` the hidden geometry's gap to the wall plane
+    /// `2 d_w`, `d_w` the hidden geometry's gap to the wall plane
     /// ([`SceneGeometry::wall_gap`]), and a floor (m) on the laser leg's OPL: what
     /// [`MeasurementCtx::past_film`] bounds the rest of a path with.
     wall_gap2: f32,
-    wall_gap2_sq: f32,
     laser_leg_floor: f32,
     /// `path`: survival of the Russian roulette before `rr_bounces`: the scene's fixed
     /// `render.rr_early_survival`, or what [`roulette`]'s pilot chose for the render
@@ -170,7 +169,6 @@ impl<'a> MeasurementCtx<'a> {
             opl_min: (film.start - margin) as f32,
             opl_max: (film.end() + margin) as f32,
             wall_gap2: 2.0 * geom.wall_gap,
-            wall_gap2_sq: (2.0 * geom.wall_gap).powi(2),
             rr_early_survival: match scene.render.rr_early_survival {
                 crate::scene::EarlySurvival::Fixed(q) => q,
                 crate::scene::EarlySurvival::Auto => 1.0,
@@ -228,7 +226,7 @@ impl<'a> MeasurementCtx<'a> {
         let r = self.scene.laser.spot_radius;
         let d = ((x - self.x_l).length() - r).max(0.0);
         let rest = if on_wall {
-            (d * d + self.wall_gap2_sq).sqrt()
+            (d * d + self.wall_gap2 * self.wall_gap2).sqrt()
         } else if wall_only && r == 0.0 {
             d.max(self.n_w.dot(x - self.x_l) + self.wall_gap2)
         } else {

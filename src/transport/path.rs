@@ -19,8 +19,8 @@
 //!   against the BSDF technique's area density at the spot point);
 //! - **Russian roulette** once a path has `rr_bounces` bounces, survival probability the
 //!   local albedo (at most 0.95); before that, from the first hidden vertex on, of
-//!   constant survival `rr_early_survival` (1, no roulette, by default) after the
-//!   vertex's own contribution is recorded; `max_bounces` caps the length, `filter_bounces` keeps
+//!   constant survival `rr_early_survival` (by default `auto`: a pilot picks it per
+//!   render, `transport::roulette`) after the vertex's own contribution is recorded; `max_bounces` caps the length, `filter_bounces` keeps
 //!   only paths of one length (mitransient's `filter_bounces`, in our count), and
 //!   `discard_direct_paths` drops paths that never leave the wall. A hidden vertex in
 //!   front of whose plane no hidden triangle rises (a planar or convex object) continues

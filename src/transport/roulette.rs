@@ -31,7 +31,7 @@
 //! Measured (BENCHMARKS.md, "Russian roulette before rr_bounces"; 8 renders each against
 //! a 4 x 65536 spp reference): on the arc, multi-bounce, 8192 spp, it picks 0.2–0.3 and
 //! reaches equal error 1.4–1.6x sooner than no roulette; on the concave corner it picks
-//! 1, where a fixed 0.35 is 2.8x later. What it does not know: the adjoint's variance
+//! 1, where a fixed 0.35 is 2.7x later. What it does not know: the adjoint's variance
 //! (gradients use the forward pass's choice), and paths of more than five bounces (taken
 //! as five).
 

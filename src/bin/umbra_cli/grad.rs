@@ -257,7 +257,8 @@ pub fn bench_grad(args: &BenchArgs) -> umbra::Result<()> {
             (Model::Mc3, 64),
             (Model::Mc3, 512),
             (Model::Path, 64),
-            // From 1024 spp the roulette's pilot runs (`transport::roulette`), in each pass.
+            // From 1024 spp the roulette plays (`transport::roulette`); both passes are
+            // timed at the pilot's choice, neither paying for the pilot.
             (Model::Path, 1024),
             (Model::Tri3, 1),
         ] {

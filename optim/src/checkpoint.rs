@@ -33,7 +33,6 @@ use argmin::core::{Error, State as _};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use std::cell::RefCell;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
 
@@ -353,83 +352,9 @@ impl CheckFinite for LossRecord {
     }
 }
 
-/// Writes `bytes` to `path` atomically (temporary file, fsync, rename).
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    write_file_atomic(path, |tmp| {
-        let mut f = std::fs::File::create(tmp)?;
-        f.write_all(bytes)
-    })
-}
-
-/// Writes `path` atomically: `write` fills the temporary file `.<name>.tmp<pid>` in the
-/// same folder (made if missing), which is fsynced and renamed over `path`; a reader
-/// sees the old file or the new one, never a torn one, and a failed write removes its
-/// temporary. Every file Umbra writes goes through here (the transient writers, whose
-/// libraries want a path, through `umbra::io::write_via_temp`).
-pub fn write_file_atomic(
-    path: &Path,
-    write: impl FnOnce(&Path) -> std::io::Result<()>,
-) -> std::io::Result<()> {
-    let dir = path.parent().filter(|d| !d.as_os_str().is_empty());
-    if let Some(d) = dir {
-        std::fs::create_dir_all(d)?;
-    }
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{name}.tmp{}", std::process::id()));
-    let written = write(&tmp)
-        .and_then(|()| std::fs::File::open(&tmp)?.sync_all())
-        .and_then(|()| std::fs::rename(&tmp, path));
-    if written.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    written?;
-    if let Some(d) = dir {
-        // Persist the rename itself (best effort: not every file system allows it).
-        if let Ok(f) = std::fs::File::open(d) {
-            let _ = f.sync_all();
-        }
-    }
-    Ok(())
-}
-
-/// Removes the temporaries [`write_atomic`] leaves when killed between writing and
-/// renaming (`.<name>.tmp<pid>` for the checkpoint files `stage.bin` and
-/// `solver-<s>.bin`) from `dir`; returns the names removed.
-pub fn remove_stale_temporaries(dir: &Path) -> Vec<String> {
-    remove_stale_temporaries_of(dir, |base| {
-        base == "stage.bin"
-            || base
-                .strip_prefix("solver-")
-                .and_then(|s| s.strip_suffix(".bin"))
-                .is_some_and(|s| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit()))
-    })
-}
-
-/// [`remove_stale_temporaries`] for the files whose names `ours` accepts.
-pub fn remove_stale_temporaries_of(dir: &Path, ours: impl Fn(&str) -> bool) -> Vec<String> {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return Vec::new();
-    };
-    let mut removed = Vec::new();
-    for e in entries.flatten() {
-        let name = e.file_name().to_string_lossy().into_owned();
-        let Some((base, pid)) = name.strip_prefix('.').and_then(|n| n.rsplit_once(".tmp")) else {
-            continue;
-        };
-        if ours(base)
-            && !pid.is_empty()
-            && pid.bytes().all(|b| b.is_ascii_digit())
-            && std::fs::remove_file(e.path()).is_ok()
-        {
-            removed.push(name);
-        }
-    }
-    removed.sort();
-    removed
-}
+pub use crate::atomic::{
+    remove_stale_temporaries, remove_stale_temporaries_of, write_atomic, write_file_atomic,
+};
 
 /// One recorded iteration of the fit.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]

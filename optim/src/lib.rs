@@ -4,10 +4,12 @@
 //! per-vertex values. Umbra implements it (`umbra::fit`); tests here use toy objectives.
 
 pub mod adam;
+pub mod atomic;
 pub mod checkpoint;
 pub mod fit;
 pub mod laplacian;
 pub mod lbfgs;
+pub mod lock;
 pub mod mesh;
 pub mod problem;
 pub mod remesh;

@@ -112,7 +112,7 @@ struct ConvertArgs {
     #[arg(long)]
     ignore_before: Option<f32>,
     /// Sum every K consecutive bins (the film's bin width grows K times).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = flags::at_least_one)]
     time_bin: usize,
 }
 
@@ -125,6 +125,7 @@ fn convert(args: ConvertArgs) -> umbra::Result<()> {
     m.check_against(&scene)?;
     let mut t = m.transient;
     let bins = scene.film.temporal_bins as usize;
+    umbra::fit::objective::check_ignore_before(&scene.film, args.ignore_before, "--ignore-before")?;
     if let Some(opl) = args.ignore_before {
         let film = &scene.film;
         let first = ((opl - film.start_opl) / film.bin_width_opl)
@@ -186,6 +187,12 @@ struct RenderArgs {
 }
 
 fn main() {
+    // Past a file-size limit (`ulimit -f`) a write fails with EFBIG instead of the signal
+    // killing the process mid-write, so the temporary is removed and the error named.
+    // SAFETY: setting a signal's disposition to SIG_IGN has no preconditions.
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+    }
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Render(args) => render(args),
@@ -257,6 +264,7 @@ fn render(args: RenderArgs) -> umbra::Result<()> {
         // A second Ctrl-C kills the process the usual way.
         let _ = ctrlc::set_handler(move || {
             if p.cancel.swap(true, Ordering::Relaxed) {
+                optim::atomic::remove_live_temporaries();
                 std::process::exit(130);
             }
         });
@@ -308,9 +316,16 @@ fn render(args: RenderArgs) -> umbra::Result<()> {
     bar.finish_and_clear();
     let transient = result?;
     let secs = start.elapsed().as_secs_f64();
+    if umbra::transport::silence::all_zero(&transient.data) {
+        eprintln!(
+            "warning: the render is zero everywhere: {}",
+            umbra::transport::silence::zero_reason(&scene, renderer.model)
+        );
+    }
     umbra::io::write_capture(&args.output, &transient, &scene)?;
     let mut previews = Vec::new();
-    if !args.no_preview {
+    // No previews beside a device or a pipe (`-o /dev/null` must not make /dev/null_*.png).
+    if !args.no_preview && !optim::atomic::is_special(&args.output) {
         previews = umbra::io::preview::write_previews(&args.output, &transient)?;
     }
     let detail = match renderer.model {

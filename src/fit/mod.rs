@@ -23,6 +23,7 @@
 pub mod determined;
 pub mod init;
 pub mod intensity;
+mod iters;
 pub mod metrics;
 pub mod objective;
 mod prepare;

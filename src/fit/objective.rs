@@ -102,6 +102,21 @@ pub fn first_fitted_bin(scene: &Scene, ignore_before_opl: Option<f32>) -> usize 
     })
 }
 
+/// Refuses an `--ignore-before` OPL (m) that leaves no bin of `film`; `flag` names it.
+pub fn check_ignore_before(
+    film: &crate::scene::FilmSpec,
+    opl: Option<f32>,
+    flag: &str,
+) -> crate::Result<()> {
+    let end = film.start_opl + film.temporal_bins as f32 * film.bin_width_opl;
+    match opl {
+        Some(v) if !v.is_finite() || v >= end => Err(crate::Error::Invalid(format!(
+            "{flag}: {v} m is not an optical path length before the film's end ({end} m): every bin would be ignored"
+        ))),
+        _ => Ok(()),
+    }
+}
+
 /// Zeroes bins `..first` of every `bins`-long row.
 pub fn zero_leading_bins(data: &mut [f32], bins: usize, first: usize) {
     if first == 0 || bins == 0 {

@@ -258,9 +258,16 @@ pub fn run(
     };
     check_schedule(&schedule).map_err(|e| Error::Invalid(format!("{schedule_name}: {e}")))?;
     if let Some(total) = req.iters {
-        let old: u64 = schedule.stages.iter().map(|s| s.iters).sum::<u64>().max(1);
-        for s in &mut schedule.stages {
-            s.iters = (s.iters * total).div_ceil(old).max(1);
+        let weights: Vec<u64> = schedule.stages.iter().map(|s| s.iters).collect();
+        let split = super::iters::split_iters(&weights, total).ok_or_else(|| {
+            Error::Invalid(format!(
+                "{}: {total} is fewer than the schedule's {} stages (each runs at least one iteration)",
+                n("iters"),
+                weights.len()
+            ))
+        })?;
+        for (s, k) in schedule.stages.iter_mut().zip(split) {
+            s.iters = k;
         }
     }
     let model = Model::parse(&req.model)
@@ -296,6 +303,9 @@ pub fn run(
         None
     };
     std::fs::create_dir_all(&req.output).map_err(|e| Error::io(&req.output, e))?;
+    // One fit per folder, held until the fit returns; before anything there is touched.
+    let _lock =
+        optim::lock::FolderLock::acquire(&req.output, "umbra fit").map_err(Error::Invalid)?;
     // Temporaries of outputs a killed run was writing (target.npy, mesh.obj, ...).
     optim::checkpoint::remove_stale_temporaries_of(&req.output, |_| true);
     let file = match &req.measurement {
@@ -367,6 +377,7 @@ pub fn run(
         (binned, data)
     };
     let ignore_before_opl = req.ignore_before.or(lct_default);
+    super::objective::check_ignore_before(&scene.film, req.ignore_before, &n("ignore_before"))?;
     let noise_floor =
         counts.then(|| photon_noise_floor(&scene, &measured, bin.1, ignore_before_opl));
     let starts: Vec<(&str, Init)> = match req.init.as_str() {
@@ -484,10 +495,25 @@ pub fn run(
             n("jitter")
         )));
     }
+    let film_opl = scene.film.temporal_bins as f64 * scene.film.bin_width_opl as f64;
+    if jitter_opl > film_opl {
+        return Err(Error::Invalid(format!(
+            "{}: {jitter_opl} m is a blur longer than the whole film ({} bins x {} m = {film_opl} m); a detector's jitter is a few bins (OPL, m)",
+            n("jitter"),
+            scene.film.temporal_bins,
+            scene.film.bin_width_opl
+        )));
+    }
     let time_offset_max_opl = req.time_offset.unwrap_or(0.0);
     if !(time_offset_max_opl.is_finite() && time_offset_max_opl >= 0.0) {
         return Err(Error::Invalid(format!(
             "{}: {time_offset_max_opl} is not a search range (OPL, m, >= 0)",
+            n("time_offset")
+        )));
+    }
+    if time_offset_max_opl > film_opl {
+        return Err(Error::Invalid(format!(
+            "{}: {time_offset_max_opl} m is a search range longer than the whole film ({film_opl} m)",
             n("time_offset")
         )));
     }

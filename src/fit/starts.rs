@@ -50,6 +50,7 @@ fn copy_outputs(files: &[PathBuf], out: &Path) -> Result<Vec<PathBuf>> {
         .iter()
         .map(|f| {
             let to = out.join(f.file_name().unwrap_or_default());
+            crate::io::text::check_regular(f, "a start's output")?;
             let bytes = std::fs::read(f).map_err(|e| Error::io(f, e))?;
             write_atomic(&to, &bytes).map_err(|e| Error::io(&to, e))?;
             Ok(to)

@@ -64,6 +64,8 @@ impl TriMesh {
         // albedo: the mean of r, g, b (Umbra is monochrome).
         let mut colours = Vec::new();
         let mut all_coloured = true;
+        // Lines of the first vertex with a colour and the first without one.
+        let (mut first_coloured, mut first_plain) = (None, None);
         let mut face = Vec::new();
         for (i, line) in text.lines().enumerate() {
             let at = |msg: String| Error::line(origin, i + 1, msg);
@@ -90,8 +92,14 @@ impl TriMesh {
                         .then(|| fields[3..6].iter().map(|c| c.parse().ok()).collect())
                         .flatten();
                     match rgb {
-                        Some(rgb) if all_coloured => colours.push(rgb.iter().sum::<f32>() / 3.0),
-                        _ => all_coloured = false,
+                        Some(rgb) => {
+                            first_coloured.get_or_insert(i + 1);
+                            colours.push(rgb.iter().sum::<f32>() / 3.0);
+                        }
+                        None => {
+                            first_plain.get_or_insert(i + 1);
+                            all_coloured = false;
+                        }
                     }
                 }
                 Some("f") => {
@@ -114,6 +122,18 @@ impl TriMesh {
         }
         if mesh.triangles.is_empty() {
             return Err(Error::scene(origin, "OBJ has no faces"));
+        }
+        // Colours on some vertices only have no albedo meaning for the rest: refused
+        // rather than dropped.
+        if let (Some(c), Some(p)) = (first_coloured, first_plain) {
+            return Err(Error::scene(
+                origin,
+                format!(
+                    "{} of {} vertices have colours (v x y z r g b, read as albedo; first at line {c}), the rest not (first at line {p}): give every vertex a colour, or none",
+                    colours.len(),
+                    mesh.positions.len()
+                ),
+            ));
         }
         if all_coloured && !colours.is_empty() {
             if let Some(bad) = colours.iter().position(|a| !(0.0..=1.0).contains(a)) {

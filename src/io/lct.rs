@@ -46,14 +46,24 @@ fn to_f32(data: &NumericData) -> Vec<f32> {
 /// Reads an LCT `.mat` capture; a missing variable or a wrong shape is an error naming
 /// the file and the variable.
 pub fn read_lct(path: &Path) -> Result<LctCapture> {
-    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    let mat = MatFile::parse(std::io::BufReader::new(file))
-        .map_err(|e| Error::scene(path, format!("not a MATLAB v5 .mat file: {e}")))?;
+    let file = super::text::open_regular(path, "a MATLAB .mat capture")?;
+    // What matfile skipped or stopped at is named from the file's own layout.
+    let why = |name: &str| {
+        let bytes = std::fs::read(path).unwrap_or_default();
+        super::mat_layout::why_unreadable(&bytes, name)
+    };
+    let mat = MatFile::parse(std::io::BufReader::new(file)).map_err(|e| {
+        let msg = why("rect_data").unwrap_or_else(|| format!("not a MATLAB v5 .mat file: {e}"));
+        Error::scene(path, msg)
+    })?;
     let find = |name: &str| {
         mat.find_by_name(name).ok_or_else(|| {
+            let msg = why(name).unwrap_or_else(|| format!("no variable '{name}'"));
             Error::scene(
                 path,
-                format!("no variable '{name}' (an LCT capture has rect_data and width)"),
+                format!(
+                    "{msg} (an LCT capture has rect_data, a numeric y x x x t array, and width)"
+                ),
             )
         })
     };
@@ -65,9 +75,22 @@ pub fn read_lct(path: &Path) -> Result<LctCapture> {
         ));
     };
     let width = to_f32(find("width")?.data());
-    let Some(&width) = width.first().filter(|w| w.is_finite() && **w > 0.0) else {
-        return Err(Error::scene(path, "width must be one positive number (m)"));
+    let &[width] = width.as_slice() else {
+        return Err(Error::scene(
+            path,
+            format!(
+                "width must be one number (m), got {} values {:?}",
+                width.len(),
+                &width[..width.len().min(8)]
+            ),
+        ));
     };
+    if !(width.is_finite() && width > 0.0) {
+        return Err(Error::scene(
+            path,
+            format!("width must be a positive number (m), got {width}"),
+        ));
+    }
     let counts = to_f32(rect.data());
     if let Some(i) = counts.iter().position(|v| !v.is_finite()) {
         return Err(Error::scene(

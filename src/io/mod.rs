@@ -2,6 +2,7 @@
 
 pub mod exr_out;
 pub mod lct;
+pub mod mat_layout;
 pub mod measured;
 mod npy_header;
 pub mod plot;
@@ -82,8 +83,8 @@ pub fn write_npy(path: &Path, t: &Transient) -> Result<()> {
 /// (made if missing), which is synced and renamed over `path`. An interrupted write never
 /// leaves a partial file, nor loses the previous one; on failure the temporary file is
 /// removed. Every transient writer (npy, EXR, y-tal HDF5, gradients' npz) goes through it,
-/// and it through `optim::checkpoint::write_file_atomic` (one temporary-name scheme,
-/// `.<name>.tmp<pid>`, which a fit's start clears).
+/// and it through `optim::atomic::write_file_atomic` (one temporary-name scheme,
+/// `.<name>.tmp<pid>-<n>`; special files written in place or refused, never replaced).
 pub fn write_via_temp(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
@@ -123,7 +124,7 @@ pub fn check_output_place(path: &Path) -> Result<()> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     }
-    Ok(())
+    optim::atomic::check_target(path).map_err(|e| Error::io(path, e))
 }
 
 /// Reads a `.npy` of float32 or float64 values.

@@ -19,7 +19,7 @@ pub struct NpyHeader {
 /// Reads and checks the header of `path` against the file's size.
 pub fn check(path: &Path) -> Result<NpyHeader> {
     let bad = |msg: String| Error::scene(path, msg);
-    let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut f = super::text::open_regular(path, "a .npy array")?;
     let file_len = f.metadata().map_err(|e| Error::io(path, e))?.len();
     let mut pre = [0u8; 12];
     let got = read_up_to(&mut f, &mut pre).map_err(|e| Error::io(path, e))?;

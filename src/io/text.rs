@@ -1,5 +1,6 @@
 //! Text inputs (scene TOML and XML, OBJ meshes, fit schedules), read with two guards a
-//! plain `read_to_string` lacks: a size cap, so a wrong path (`/dev/zero`, a 40 GB
+//! plain `read_to_string` lacks (besides [`check_regular`]'s refusal of FIFOs, devices
+//! and sockets): a size cap, so a wrong path (`/dev/zero`, a 40 GB
 //! capture given as a mesh) fails at once instead of exhausting memory, and a check
 //! for NUL bytes, which no text format Umbra reads contains and every binary file
 //! does within its first kilobytes.
@@ -12,6 +13,40 @@ use std::path::Path;
 /// beyond what the renderer can fit in memory as a BVH on a workstation anyway.
 pub const MAX_TEXT_BYTES: u64 = 1 << 30;
 
+/// Checks by its type, before anything opens it, that `path` is a regular file (or a
+/// link to one): a FIFO without a writer would block the read forever, a device or a
+/// socket holds no file. `what` names the kind of file expected, with its article.
+pub fn check_regular(path: &Path, what: &str) -> Result<()> {
+    use std::os::unix::fs::FileTypeExt;
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    let t = meta.file_type();
+    let kind = if t.is_file() {
+        return Ok(());
+    } else if t.is_dir() {
+        "a folder"
+    } else if t.is_fifo() {
+        "a FIFO (named pipe)"
+    } else if t.is_char_device() {
+        "a character device"
+    } else if t.is_block_device() {
+        "a block device"
+    } else if t.is_socket() {
+        "a socket"
+    } else {
+        "not a regular file"
+    };
+    Err(Error::scene(
+        path,
+        format!("is {kind}, not {what}: Umbra reads regular files only"),
+    ))
+}
+
+/// Opens `path` for reading after [`check_regular`].
+pub fn open_regular(path: &Path, what: &str) -> Result<std::fs::File> {
+    check_regular(path, what)?;
+    std::fs::File::open(path).map_err(|e| Error::io(path, e))
+}
+
 /// Reads `path` as UTF-8 text of at most [`MAX_TEXT_BYTES`]; `what` names the kind of
 /// file in the messages, with its article ("an OBJ mesh", "a scene").
 pub fn read_text(path: &Path, what: &str) -> Result<String> {
@@ -20,12 +55,7 @@ pub fn read_text(path: &Path, what: &str) -> Result<String> {
 
 /// [`read_text`] with an explicit cap (bytes).
 pub fn read_text_capped(path: &Path, what: &str, cap: u64) -> Result<String> {
-    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    if let Ok(meta) = file.metadata() {
-        if meta.is_dir() {
-            return Err(Error::scene(path, format!("is a folder, not {what}")));
-        }
-    }
+    let file = open_regular(path, what)?;
     let mut bytes = Vec::new();
     let mut chunk = vec![0u8; 1 << 16];
     let mut reader = file;
@@ -90,7 +120,11 @@ mod tests {
             1600
         );
         let e = read_text(&dir, "a scene").unwrap_err().to_string();
-        assert!(e.contains("is a folder"), "{e}");
+        assert!(e.contains("is a folder, not a scene"), "{e}");
+        let e = read_text(Path::new("/dev/zero"), "a scene")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("is a character device, not a scene"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

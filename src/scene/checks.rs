@@ -203,7 +203,9 @@ fn behind_wall_share(scene: &Scene, i: usize) -> f64 {
     let (mut behind, mut total) = (0.0f64, 0.0f64);
     for t in 0..mesh.triangles.len() {
         let tri = mesh.triangle(t);
-        total += f64::from(mesh.area(t));
+        // Both areas by the same f64 sum, so a mesh wholly behind has a share of exactly 1
+        // (the f32 `TriMesh::area` made it 0.99999, and the refusal never fired).
+        total += area_behind(tri, |_| f32::NEG_INFINITY);
         behind += area_behind(tri, |p| scene.wall.height_above(p));
     }
     if total > 0.0 {

@@ -4,6 +4,7 @@
 //! error names the file and the field or line, and relative OBJ paths are resolved
 //! against the scene file's folder.
 
+use super::exact_len::{exact, exact_matrix_opt, exact_opt};
 use super::{
     CaptureType, Detector, EarlySurvival, FilmSpec, HiddenObject, KernelSpec, Laser, LaserEmission,
     Model, Reflectance, RelayWall, RenderSettings, ScanGrid, Scene, Techniques, Visibility,
@@ -39,12 +40,13 @@ fn default_capture() -> String {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct WallT {
-    #[serde(default)]
+    #[serde(default, deserialize_with = "exact")]
     center: [f32; 3],
+    #[serde(deserialize_with = "exact")]
     size: [f32; 2],
-    #[serde(default = "plus_z")]
+    #[serde(default = "plus_z", deserialize_with = "exact")]
     normal: [f32; 3],
-    #[serde(default = "plus_y")]
+    #[serde(default = "plus_y", deserialize_with = "exact")]
     up: [f32; 3],
     #[serde(default = "one")]
     albedo: f32,
@@ -63,7 +65,9 @@ fn one() -> f32 {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct LaserT {
+    #[serde(deserialize_with = "exact")]
     origin: [f32; 3],
+    #[serde(default, deserialize_with = "exact_opt")]
     target: Option<[f32; 3]>,
     power: Option<f32>,
     irradiance: Option<f32>,
@@ -76,14 +80,18 @@ struct LaserT {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct DetectorT {
+    #[serde(deserialize_with = "exact")]
     origin: [f32; 3],
 }
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct ScanT {
+    #[serde(deserialize_with = "exact")]
     resolution: [u32; 2],
+    #[serde(default, deserialize_with = "exact_opt")]
     center: Option<[f32; 3]>,
+    #[serde(default, deserialize_with = "exact_opt")]
     size: Option<[f32; 2]>,
 }
 
@@ -108,8 +116,8 @@ fn box_kernel() -> String {
 struct ObjectT {
     file: String,
     name: Option<String>,
-    #[serde(default = "one")]
-    albedo: f32,
+    /// Default 1; unused (with a warning) where the OBJ has vertex colours.
+    albedo: Option<f32>,
     #[serde(default)]
     two_sided: bool,
     /// `lambertian` (default) or `retroreflective`.
@@ -126,7 +134,9 @@ struct TransformT {
     scale: Option<ScaleT>,
     #[serde(default)]
     rotate: Vec<RotateT>,
+    #[serde(default, deserialize_with = "exact_opt")]
     translate: Option<[f32; 3]>,
+    #[serde(default, deserialize_with = "exact_matrix_opt")]
     matrix: Option<[[f32; 4]; 4]>,
 }
 
@@ -134,12 +144,13 @@ struct TransformT {
 #[serde(untagged)]
 enum ScaleT {
     Uniform(f32),
-    PerAxis([f32; 3]),
+    PerAxis(#[serde(deserialize_with = "exact")] [f32; 3]),
 }
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RotateT {
+    #[serde(deserialize_with = "exact")]
     axis: [f32; 3],
     /// Degrees.
     angle: f32,
@@ -304,10 +315,10 @@ pub fn parse(
         axis_v: f.wall.size[1] * e_v,
         albedo: f.wall.albedo,
     };
-    if !(f.wall.size[0] > 0.0 && f.wall.size[1] > 0.0) {
+    if !f.wall.size.iter().all(|s| s.is_finite() && *s > 0.0) {
         return Err(field(
             "wall.size",
-            format!("must be positive, got {:?}", f.wall.size),
+            format!("must be finite and positive, got {:?}", f.wall.size),
         ));
     }
 
@@ -425,10 +436,17 @@ pub fn parse(
                 .with_falloff(m, "retro_falloff")
                 .map_err(|e| field(&format!("objects[{i}].retro_falloff"), e))?,
         };
+        if let (Some(a), Some(_)) = (o.albedo, &mesh.vertex_albedo) {
+            warnings.push(format!(
+                "{}: objects[{i}].albedo = {a} is not used: {} has vertex colours (v x y z r g b), which are {name}'s albedo",
+                origin.display(),
+                o.file
+            ));
+        }
         objects.push(HiddenObject {
             name,
             mesh,
-            albedo: o.albedo,
+            albedo: o.albedo.unwrap_or(1.0),
             two_sided: o.two_sided,
             reflectance,
         });

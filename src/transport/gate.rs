@@ -19,6 +19,7 @@
 //! | `path` with `laser.spot_radius > 0`, laser sampling off and BSDF sampling on | gradient | paths then reach the spot only by landing on it, and a ray-found landing point crossing the spot's rim needs a boundary term replay does not have (with laser sampling on, those paths carry the small MIS share `q/(q + 1/(π r²))`) |
 //! | `auto` | gradient | resolve it first ([`super::Renderer::new`] does) |
 //! | `spp = 0`, `subdivision` or `max_error` not > 0, `max_depth` < 3 | both | |
+//! | no hidden triangles | gradient | nothing to differentiate (a render is zero, with a warning: [`super::silence`]) |
 //! | a vertex not finite or beyond `scene::checks::MAX_COORD` | both | the BVH and `f32` OPLs cannot take it |
 //! | more memory than the machine has ([`super::budget`]) | both | the size in bytes and the fields that make it |
 
@@ -41,6 +42,11 @@ pub fn check(scene: &Scene, opts: &RenderOptions, pass: Pass) -> Result<()> {
     check_values(scene.render.max_bounces, opts)?;
     check_reflectance(scene, opts.model)?;
     check_vertices(scene)?;
+    if pass == Pass::Gradient && scene.total_hidden_triangles() == 0 {
+        return Err(Error::Invalid(
+            "gradients: the scene has no hidden objects (objects), so there is no vertex or albedo to differentiate".into(),
+        ));
+    }
     // `auto` is checked as `tri3`, the smallest footprint it can pick, before its pilot
     // runs; `Renderer::new` checks the model it picks.
     let model = match opts.model {

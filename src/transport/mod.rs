@@ -23,6 +23,7 @@ mod path_replay;
 pub(crate) mod path_step;
 pub mod render;
 pub mod roulette;
+pub mod silence;
 pub mod tri3;
 pub mod tri3_adjoint;
 pub mod tri3_exact;
@@ -270,6 +271,11 @@ pub fn run_samples<S: Sink>(
     sink: &mut S,
     scratch: &mut path::PathScratch,
 ) {
+    // Every NLOS path has a hidden vertex: without hidden triangles none exists (and the
+    // area distribution they would be picked from is empty).
+    if ctx.scene.total_hidden_triangles() == 0 {
+        return;
+    }
     let seeds = StreamSeeds::new(seed, m);
     // Eight samples at a time: the scalar routines' contributions (and derivatives), in
     // the same order (`tests/lanes.rs`).

@@ -131,7 +131,7 @@ fn parse_bin(text: &str) -> std::result::Result<(u32, u32), String> {
 fn load_schedule(args: &FitArgs) -> Result<Option<optim::Schedule>> {
     match &args.config {
         Some(path) => {
-            let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+            let text = umbra::io::read_text(path, "a fit schedule")?;
             Ok(Some(parse_schedule(&text, path)?))
         }
         None => Ok(None),
@@ -201,6 +201,7 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         let c = cancel.clone();
         let _ = ctrlc::set_handler(move || {
             if c.swap(true, Ordering::Relaxed) {
+                optim::atomic::remove_live_temporaries();
                 std::process::exit(130);
             }
         });
@@ -222,6 +223,7 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
                 "umbra fit: interrupted; the checkpoint in {} resumes with --resume",
                 args.output.join("checkpoint").display()
             );
+            optim::atomic::remove_live_temporaries();
             std::process::exit(130);
         }
         r => r?,

@@ -78,3 +78,12 @@ impl RenderFlags {
         }
     }
 }
+
+/// A count of 1 or more (`--time-bin 0` used to run as 1 without a word).
+pub fn at_least_one(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(0) => Err("must be at least 1".into()),
+        Ok(k) => Ok(k),
+        Err(e) => Err(format!("'{s}' is not a whole number: {e}")),
+    }
+}

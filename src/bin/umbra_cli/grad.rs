@@ -4,7 +4,7 @@ use super::flags::RenderFlags;
 use super::{load_scene, BenchArgs};
 use std::path::PathBuf;
 use umbra::scene::Model;
-use umbra::transport::RenderOptions;
+use umbra::transport::{silence, RenderOptions};
 
 #[derive(clap::Args)]
 pub struct GradArgs {
@@ -67,6 +67,7 @@ fn exit_on_ctrl_c(command: &'static str, output: Option<&std::path::Path>) {
     });
     let _ = ctrlc::set_handler(move || {
         eprintln!("\numbra {command}: interrupted{note}");
+        optim::atomic::remove_live_temporaries();
         std::process::exit(130);
     });
 }
@@ -75,6 +76,15 @@ pub fn grad(args: GradArgs) -> umbra::Result<()> {
     use umbra::adjoint::{self, Loss};
     // Before any work: a typo in the output must not cost a gradient.
     umbra::io::check_output_place(&args.output)?;
+    let ext = args.output.extension().and_then(|e| e.to_str());
+    if !ext.is_some_and(|e| e.eq_ignore_ascii_case("npz"))
+        && !optim::atomic::is_special(&args.output)
+    {
+        return Err(umbra::Error::Invalid(format!(
+            "-o {}: a gradient is written as a .npz archive (loss, vertices, albedo); give a name ending in .npz",
+            args.output.display()
+        )));
+    }
     let mut scene = load_scene(Some(&args.scene), &args.define)?;
     for w in &scene.warnings {
         eprintln!("warning: {w}");
@@ -106,6 +116,8 @@ pub fn grad(args: GradArgs) -> umbra::Result<()> {
                 ),
             ));
         }
+        // Refused for the gradient before the render is spent on it.
+        umbra::transport::gate::check(&scene, &opts, umbra::transport::gate::Pass::Gradient)?;
         // The render and the adjoint play one roulette: its pilot runs once.
         let scene = umbra::transport::roulette::resolved(
             &scene,
@@ -117,8 +129,25 @@ pub fn grad(args: GradArgs) -> umbra::Result<()> {
             (0.0, array.data.clone())
         } else {
             let primal = umbra::transport::render(&scene, &geom, &opts, None)?;
+            if silence::all_zero(&primal.data) {
+                eprintln!(
+                    "warning: the render is zero everywhere, so the gradient is too: {}",
+                    silence::zero_reason(&scene, opts.model)
+                );
+            } else if primal.data == array.data {
+                eprintln!(
+                    "warning: the render equals the target bin for bin ({}): the loss and the gradient are 0; a target rendered with the same seed and spp reproduces the render exactly (use another --seed, or a measured target)",
+                    input.display()
+                );
+            }
             loss.evaluate(&primal.data, &array.data, primal.bins())?
         };
+        if given && silence::all_zero(&adj) {
+            eprintln!(
+                "warning: the adjoint {} is zero everywhere: the gradient is 0",
+                input.display()
+            );
+        }
         Ok((value, adjoint::gradient(&scene, &geom, &opts, &adj, None)?))
     })?;
     if g.truncated > 0 {

@@ -50,7 +50,7 @@ pub struct ReconArgs {
     pub ignore_before: Option<f32>,
     /// Sum every K consecutive bins first (e.g. 4 or 8 for the 1.2 mm bins of the LCT
     /// captures, where photon noise per bin swamps the reconstruction).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = super::flags::at_least_one)]
     pub time_bin: usize,
     /// Subtract from each histogram the mean of its last tenth of bins: the ambient and
     /// dark-count floor of measured data, which LCT's r³ weight (and any sum over late
@@ -155,6 +155,11 @@ pub fn recon(args: ReconArgs, scene: Scene) -> Result<()> {
         let (name, volume) = match (&args.volume, data) {
             (Some(path), _) => ("volume".to_string(), read_volume(path, &grid)?),
             (None, Some(mut data)) => {
+                umbra::fit::objective::check_ignore_before(
+                    &scene.film,
+                    args.ignore_before,
+                    "--ignore-before",
+                )?;
                 let first = first_fitted_bin(&scene, args.ignore_before);
                 umbra::recon::zero_bins_before(&mut data, scene.film.temporal_bins as usize, first);
                 if args.subtract_floor {

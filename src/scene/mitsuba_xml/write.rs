@@ -55,6 +55,17 @@ fn v3(v: Vec3) -> String {
 
 /// Writes `scene` to `xml` (and `<stem>_<object>.obj` next to it).
 pub fn write(scene: &Scene, xml: &Path) -> Result<Exported> {
+    let ext = xml.extension().and_then(|e| e.to_str());
+    if !ext.is_some_and(|e| e.eq_ignore_ascii_case("xml")) {
+        return Err(Error::Invalid(format!(
+            "{}: a Mitsuba scene is written as .xml (with its meshes as .obj beside it); give a name ending in .xml",
+            xml.display()
+        )));
+    }
+    // The output's folder is made, as every other writer makes it.
+    if let Some(dir) = xml.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    }
     let mut warnings = Vec::new();
     let (wall, scan, laser) = (&scene.wall, &scene.scan, &scene.laser);
     let rest = wall_rest(scene, xml)?;
@@ -230,7 +241,7 @@ pub fn write(scene: &Scene, xml: &Path) -> Result<Exported> {
         for t in &o.mesh.triangles {
             let _ = writeln!(obj, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1);
         }
-        std::fs::write(&path, obj).map_err(|e| Error::io(&path, e))?;
+        optim::checkpoint::write_atomic(&path, obj.as_bytes()).map_err(|e| Error::io(&path, e))?;
         objs.push(path);
         let rho = o.albedo;
         let diffuse = format!(
@@ -325,7 +336,7 @@ pub fn write(scene: &Scene, xml: &Path) -> Result<Exported> {
             String::new()
         },
     );
-    std::fs::write(xml, s).map_err(|e| Error::io(xml, e))?;
+    optim::checkpoint::write_atomic(xml, s.as_bytes()).map_err(|e| Error::io(xml, e))?;
     Ok(Exported {
         xml: xml.to_path_buf(),
         objs,

@@ -1,0 +1,142 @@
+//! Why a render came out zero everywhere.
+//!
+//! A render (or a gradient) that is zero in every bin is almost never what a user meant:
+//! the film window misses every return, the only object is one-sided and faces away, the
+//! model cannot make the bounces `filter_bounces` keeps, there is no hidden object at all.
+//! [`zero_reason`] names the first cause it can prove from the scene, so every entry point
+//! (the CLI's `render`, `grad`, `gradcheck`; Python's `render` and `grad`) warns with the
+//! reason instead of writing silent zeros.
+//!
+//! The film check bounds the three-bounce optical path length (OPL) of every measurement
+//! by the hidden geometry's bounding box `B`:
+//!
+//! `min_m dist(x_l, B) + dist(B, x_s)  <=  opl  <=  max_m maxdist(x_l, B) + maxdist(B, x_s)`
+//!
+//! (plus the detector and laser legs when `account_first_and_last_bounces` is set). Paths
+//! with more bounces are longer than the lower bound too, so a film ending before it
+//! records nothing; a film starting after the upper bound records no three-bounce light.
+
+use crate::scene::{Model, Scene};
+use glam::Vec3;
+
+/// Whether every value of `data` is zero (or the slice is empty).
+pub fn all_zero(data: &[f32]) -> bool {
+    data.iter().all(|&v| v == 0.0)
+}
+
+/// The reason a render of `scene` with `model` is zero everywhere, as one sentence that
+/// names the field to change.
+pub fn zero_reason(scene: &Scene, model: Model) -> String {
+    if scene.total_hidden_triangles() == 0 {
+        return "the scene has no hidden objects (objects): there is nothing to render".to_string();
+    }
+    if let Some(f) = scene.render.filter_bounces {
+        if f > 3 && matches!(model, Model::Tri3 | Model::Mc3) {
+            return format!(
+                "render.filter_bounces = {f} keeps only {f}-bounce light, and the {} model makes three-bounce paths only (use model path)",
+                model.name()
+            );
+        }
+    }
+    if let Some(r) = film_miss(scene) {
+        return r;
+    }
+    if scene
+        .objects
+        .iter()
+        .all(|o| !o.two_sided && faces_away(scene, o))
+    {
+        return "every hidden object is one-sided (two_sided = false) and faces away from the relay wall: flip its faces or set two_sided = true".to_string();
+    }
+    "no light path reached a sensor point (the hidden objects may be occluded from the wall, or their signal is below float32's range)".to_string()
+}
+
+/// The film window against the geometry's three-bounce OPL range, if it misses it.
+fn film_miss(scene: &Scene) -> Option<String> {
+    let (lo, hi) = bounding_box(scene)?;
+    let (opl_min, opl_max) = three_bounce_range(scene, lo, hi);
+    let start = f64::from(scene.film.start_opl);
+    let end = start + f64::from(scene.film.temporal_bins) * f64::from(scene.film.bin_width_opl);
+    if end < opl_min {
+        Some(format!(
+            "the film (film.start_opl = {start} m, {} bins of {} m) ends at {end:.4} m of OPL, before the earliest return from the hidden objects (at least {opl_min:.4} m)",
+            scene.film.temporal_bins, scene.film.bin_width_opl
+        ))
+    } else if start > opl_max {
+        Some(format!(
+            "the film starts at film.start_opl = {start} m of OPL, after the latest three-bounce return from the hidden objects (at most {opl_max:.4} m)"
+        ))
+    } else {
+        None
+    }
+}
+
+fn bounding_box(scene: &Scene) -> Option<(Vec3, Vec3)> {
+    let mut lo = Vec3::splat(f32::INFINITY);
+    let mut hi = -lo;
+    for o in &scene.objects {
+        for p in &o.mesh.positions {
+            lo = lo.min(*p);
+            hi = hi.max(*p);
+        }
+    }
+    (lo.cmple(hi).all()).then_some((lo, hi))
+}
+
+/// `(min, max)` three-bounce OPL over the measurements, through the box `[lo, hi]`.
+fn three_bounce_range(scene: &Scene, lo: Vec3, hi: Vec3) -> (f64, f64) {
+    use crate::scene::CaptureType;
+    let near = |p: Vec3| f64::from((p.clamp(lo, hi) - p).length());
+    let far = |p: Vec3| f64::from((p - lo).abs().max((p - hi).abs()).length());
+    let afl = scene.account_first_and_last_bounces;
+    let laser_leg = |x_l: Vec3| afl.then(|| (x_l - scene.laser.origin).length());
+    let sensor_leg = |x_s: Vec3| afl.then(|| (x_s - scene.detector.origin).length());
+    let leg = |l: Option<f32>| f64::from(l.unwrap_or(0.0));
+    let points: Vec<Vec3> = (0..scene.scan.len()).map(|i| scene.scan.point(i)).collect();
+    let (mut opl_min, mut opl_max) = (f64::INFINITY, 0.0f64);
+    match scene.capture {
+        CaptureType::Single | CaptureType::Confocal => {
+            for &x_s in &points {
+                let x_l = match scene.capture {
+                    CaptureType::Single => scene.laser.target,
+                    _ => x_s,
+                };
+                let legs = leg(laser_leg(x_l)) + leg(sensor_leg(x_s));
+                opl_min = opl_min.min(near(x_l) + near(x_s) + legs);
+                opl_max = opl_max.max(far(x_l) + far(x_s) + legs);
+            }
+        }
+        // Every laser point with every sensor point: the extremes of each end apart.
+        CaptureType::Exhaustive => {
+            let min = |f: &dyn Fn(Vec3) -> f64| {
+                points.iter().map(|&p| f(p)).fold(f64::INFINITY, f64::min)
+            };
+            let max = |f: &dyn Fn(Vec3) -> f64| points.iter().map(|&p| f(p)).fold(0.0, f64::max);
+            opl_min =
+                min(&|p| near(p) + leg(laser_leg(p))) + min(&|p| near(p) + leg(sensor_leg(p)));
+            opl_max = max(&|p| far(p) + leg(laser_leg(p))) + max(&|p| far(p) + leg(sensor_leg(p)));
+        }
+    }
+    (opl_min, opl_max)
+}
+
+/// Whether every face of `o` turns its front away from the wall (the hidden side is the
+/// side of the wall's normal, so a face the wall sees has a normal against it).
+fn faces_away(scene: &Scene, o: &crate::scene::HiddenObject) -> bool {
+    let n_w = scene.wall.normal();
+    (0..o.mesh.triangles.len()).all(|t| {
+        let [a, b, c] = o.mesh.triangle(t);
+        (b - a).cross(c - a).dot(n_w) >= 0.0
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn all_zero_sees_one_value() {
+        assert!(all_zero(&[0.0, -0.0]));
+        assert!(!all_zero(&[0.0, 1e-30]));
+    }
+}

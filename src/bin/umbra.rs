@@ -319,7 +319,7 @@ fn render(args: RenderArgs) -> umbra::Result<()> {
     if umbra::transport::silence::all_zero(&transient.data) {
         eprintln!(
             "warning: the render is zero everywhere: {}",
-            umbra::transport::silence::zero_reason(&scene, renderer.model)
+            umbra::transport::silence::zero_reason(&scene)
         );
     }
     umbra::io::write_capture(&args.output, &transient, &scene)?;

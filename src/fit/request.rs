@@ -258,14 +258,18 @@ pub fn run(
     };
     check_schedule(&schedule).map_err(|e| Error::Invalid(format!("{schedule_name}: {e}")))?;
     if let Some(total) = req.iters {
+        // Fewer iterations than stages: the first `total` stages, one iteration each.
+        let stages = schedule.stages.len();
+        if (total as usize) < stages {
+            log(&format!(
+                "{} {total}: fewer than the schedule's {stages} stages; running its first {total}, one iteration each",
+                n("iters")
+            ));
+            schedule.stages.truncate(total as usize);
+        }
         let weights: Vec<u64> = schedule.stages.iter().map(|s| s.iters).collect();
-        let split = super::iters::split_iters(&weights, total).ok_or_else(|| {
-            Error::Invalid(format!(
-                "{}: {total} is fewer than the schedule's {} stages (each runs at least one iteration)",
-                n("iters"),
-                weights.len()
-            ))
-        })?;
+        let split = super::iters::split_iters(&weights, total)
+            .ok_or_else(|| Error::Invalid(format!("{}: must be at least 1", n("iters"))))?;
         for (s, k) in schedule.stages.iter_mut().zip(split) {
             s.iters = k;
         }

@@ -17,6 +17,7 @@
 //! | `path` with BSDF and hidden-geometry sampling both off | both | no path can leave the wall |
 //! | `path` with laser sampling off and a point spot | both | no path can hit a point |
 //! | `path` with `laser.spot_radius > 0`, laser sampling off and BSDF sampling on | gradient | paths then reach the spot only by landing on it, and a ray-found landing point crossing the spot's rim needs a boundary term replay does not have (with laser sampling on, those paths carry the small MIS share `q/(q + 1/(π r²))`) |
+//! | `tri3` or `mc3` with `filter_bounces` other than 3 | both | they make three-bounce light only |
 //! | `auto` | gradient | resolve it first ([`super::Renderer::new`] does) |
 //! | `spp = 0`, `subdivision` or `max_error` not > 0, `max_depth` < 3 | both | |
 //! | no hidden triangles | gradient | nothing to differentiate (a render is zero, with a warning: [`super::silence`]) |
@@ -68,6 +69,9 @@ pub fn check(scene: &Scene, opts: &RenderOptions, pass: Pass) -> Result<()> {
         }
         (Model::Path, Pass::Gradient) if !point_spot && !t.laser_sampling && t.bsdf_sampling => {
             "gradients of the path model with a finite laser spot need laser_sampling (or bsdf_sampling off): paths that reach the spot only by a BSDF-sampled ray would need the spot rim's boundary term"
+        }
+        (Model::Tri3 | Model::Mc3, _) if scene.render.filter_bounces.is_some_and(|f| f != 3) => {
+            "render.filter_bounces: tri3 and mc3 make three-bounce light only, and the filter keeps none of it (their renders ignored the filter); use model path"
         }
         (Model::Auto, Pass::Gradient) => {
             "gradients: model auto must be resolved to tri3, mc3 or path first"

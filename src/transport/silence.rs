@@ -1,8 +1,8 @@
 //! Why a render came out zero everywhere.
 //!
 //! A render (or a gradient) that is zero in every bin is almost never what a user meant:
-//! the film window misses every return, the only object is one-sided and faces away, the
-//! model cannot make the bounces `filter_bounces` keeps, there is no hidden object at all.
+//! the film window misses every return, the only object is one-sided and faces away, there is no
+//! hidden object at all.
 //! [`zero_reason`] names the first cause it can prove from the scene, so every entry point
 //! (the CLI's `render`, `grad`, `gradcheck`; Python's `render` and `grad`) warns with the
 //! reason instead of writing silent zeros.
@@ -16,7 +16,7 @@
 //! with more bounces are longer than the lower bound too, so a film ending before it
 //! records nothing; a film starting after the upper bound records no three-bounce light.
 
-use crate::scene::{Model, Scene};
+use crate::scene::Scene;
 use glam::Vec3;
 
 /// Whether every value of `data` is zero (or the slice is empty).
@@ -24,19 +24,11 @@ pub fn all_zero(data: &[f32]) -> bool {
     data.iter().all(|&v| v == 0.0)
 }
 
-/// The reason a render of `scene` with `model` is zero everywhere, as one sentence that
+/// The reason a render of `scene` is zero everywhere, as one sentence that
 /// names the field to change.
-pub fn zero_reason(scene: &Scene, model: Model) -> String {
+pub fn zero_reason(scene: &Scene) -> String {
     if scene.total_hidden_triangles() == 0 {
         return "the scene has no hidden objects (objects): there is nothing to render".to_string();
-    }
-    if let Some(f) = scene.render.filter_bounces {
-        if f > 3 && matches!(model, Model::Tri3 | Model::Mc3) {
-            return format!(
-                "render.filter_bounces = {f} keeps only {f}-bounce light, and the {} model makes three-bounce paths only (use model path)",
-                model.name()
-            );
-        }
     }
     if let Some(r) = film_miss(scene) {
         return r;

@@ -132,7 +132,7 @@ pub fn grad(args: GradArgs) -> umbra::Result<()> {
             if silence::all_zero(&primal.data) {
                 eprintln!(
                     "warning: the render is zero everywhere, so the gradient is too: {}",
-                    silence::zero_reason(&scene, opts.model)
+                    silence::zero_reason(&scene)
                 );
             } else if primal.data == array.data {
                 eprintln!(

@@ -1,6 +1,8 @@
-//! Fuzzes the whole of `umbra render`, not only the parsers: random scenes (capture,
-//! scan, film, meshes with wild coordinates, models and sampling options, many of them
-//! absurd) are rendered by the binary in a child process under a hard memory cap
+//! Fuzzes the whole of `umbra render`, `grad`, `gradcheck` and `fit`, not only the
+//! parsers: random scenes (capture, scan, film, meshes with wild coordinates, models and
+//! sampling options, many of them absurd) go through one of the four commands (the
+//! gradient and the fit against the scene's own render, with random `--jitter`,
+//! `--ignore-before`, `--iters` and `--loss`, many absurd), run by the binary in a child process under a hard memory cap
 //! (`ulimit -v`) and a time limit, with `UMBRA_MAX_MEMORY` below the cap so the gate's
 //! own refusal is what should stop a too-large render. Each run must end with exit 0 and
 //! a finite `.npy`, or exit 1 with an `error:` line last; a signal (abort, segfault, OOM), a
@@ -41,6 +43,49 @@ struct Case {
     spp: u32,
     extra: Vec<String>,
     threads: u32,
+    entry: Entry,
+}
+
+/// The command a case runs (after `render`, which makes the target).
+#[derive(Clone, Debug)]
+enum Entry {
+    Render,
+    Grad { loss: &'static str },
+    Gradcheck { params: u32 },
+    Fit { iters: u32, jitter: Option<f64>, ignore_before: Option<f64> },
+}
+
+fn entry() -> impl Strategy<Value = Entry> {
+    let wild = || prop_oneof![3 => 0.0f64..0.1, 1 => prop::sample::select(vec![-1.0f64, 0.0, 1e10, 1e30, f64::NAN])];
+    prop_oneof![
+        4 => Just(Entry::Render),
+        2 => prop::sample::select(vec!["l2", "l2-normalized", "poisson", "nonsense"]).prop_map(|loss| Entry::Grad { loss }),
+        1 => (0u32..4).prop_map(|params| Entry::Gradcheck { params }),
+        2 => (0u32..4, prop::option::of(wild()), prop::option::of(wild()))
+            .prop_map(|(iters, jitter, ignore_before)| Entry::Fit { iters, jitter, ignore_before }),
+    ]
+}
+
+impl Entry {
+    /// The shell command after the target's render (`&&`: a refused render is the case's
+    /// answer).
+    fn command(&self, bin: &str) -> String {
+        match self {
+            Entry::Render => String::new(),
+            Entry::Grad { loss } => format!(" && exec '{bin}' grad scene.toml --target out.npy -o g.npz --loss {loss}"),
+            Entry::Gradcheck { params } => format!(" && exec '{bin}' gradcheck scene.toml --params {params}"),
+            Entry::Fit { iters, jitter, ignore_before } => {
+                let mut c = format!(" && exec '{bin}' fit scene.toml --measured out.npy -o fit -q --iters {iters}");
+                if let Some(j) = jitter {
+                    c += &format!(" --jitter {j:e}");
+                }
+                if let Some(b) = ignore_before {
+                    c += &format!(" --ignore-before {b:e}");
+                }
+                c
+            }
+        }
+    }
 }
 
 fn coord() -> impl Strategy<Value = f32> {
@@ -122,6 +167,7 @@ fn case() -> impl Strategy<Value = Case> {
         1u32..24,
         extra(),
         prop_oneof![3 => Just(0u32), 1 => 1u32..3],
+        entry(),
     );
     (film, capture, light, hidden, render).prop_map(
         |(
@@ -129,7 +175,7 @@ fn case() -> impl Strategy<Value = Case> {
             (cap, scan, scan_size),
             ((lx, ly, lz), spot),
             (obj, albedo, z),
-            (model, spp, extra, threads),
+            (model, spp, extra, threads, entry),
         )| Case {
             capture: cap,
             scan,
@@ -147,6 +193,7 @@ fn case() -> impl Strategy<Value = Case> {
             spp,
             extra,
             threads,
+            entry,
         },
     )
 }
@@ -191,13 +238,13 @@ impl Case {
 fn run(case: &Case, dir: &Path) -> Result<(), String> {
     case.spec().write(dir);
     let _ = std::fs::remove_file(dir.join("out.npy"));
-    let mut cmd = format!(
-        "ulimit -v {ULIMIT_KIB}; exec '{}' render scene.toml -o out.npy -q --no-preview",
-        std::env::var("UMBRA_FUZZ_BIN").unwrap_or_else(|_| env!("CARGO_BIN_EXE_umbra").into())
-    );
+    let _ = std::fs::remove_dir_all(dir.join("fit"));
+    let bin = std::env::var("UMBRA_FUZZ_BIN").unwrap_or_else(|_| env!("CARGO_BIN_EXE_umbra").into());
+    let mut cmd = format!("ulimit -v {ULIMIT_KIB}; '{bin}' render scene.toml -o out.npy -q --no-preview");
     if case.threads > 0 {
         cmd += &format!(" --threads {}", case.threads);
     }
+    cmd += &case.entry.command(&bin);
     let mut child = Command::new("sh")
         .args(["-c", &cmd])
         .current_dir(dir)
@@ -236,6 +283,7 @@ fn run(case: &Case, dir: &Path) -> Result<(), String> {
     }
     match status.code() {
         Some(0) => {
+            // The target render, whatever ran after it, is finite.
             let t = umbra::io::read_npy(&dir.join("out.npy")).map_err(|e| e.to_string())?;
             match t.data.iter().position(|v| !v.is_finite()) {
                 Some(i) => Err(format!("non-finite value at {i} written")),
@@ -248,6 +296,8 @@ fn run(case: &Case, dir: &Path) -> Result<(), String> {
         {
             Ok(())
         }
+        // clap's usage errors (a flag value it parses itself).
+        Some(2) if err.starts_with("error: ") && !err.contains("panicked") => Ok(()),
         code => Err(format!("exit {code:?} (signal or panic): {err}")),
     }
 }
@@ -279,11 +329,11 @@ proptest! {
     })]
 
     #[test]
-    fn render_never_crashes(c in case()) {
+    fn render_grad_and_fit_never_crash(c in case()) {
         let dir = std::env::temp_dir().join(format!("umbra-fuzz-render-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let r = run(&c, &dir);
         let spec = c.spec();
-        prop_assert!(r.is_ok(), "{}\n--- scene.toml\n{}--- obj0.obj\n{}", r.unwrap_err(), spec.toml(), spec.objects[0].0);
+        prop_assert!(r.is_ok(), "{}\n--- {:?}\n--- scene.toml\n{}--- obj0.obj\n{}", r.unwrap_err(), c.entry, spec.toml(), spec.objects[0].0);
     }
 }

@@ -10,7 +10,12 @@ pub fn split_iters(weights: &[u64], total: u64) -> Option<Vec<u64>> {
     }
     // One iteration each, the rest in proportion.
     let rest = total - n;
-    let sum: u128 = weights.iter().map(|&w| u128::from(w)).sum::<u128>().max(1);
+    // Stages of no weight at all share alike.
+    let weights: Vec<u64> = match weights.iter().all(|&w| w == 0) {
+        true => vec![1; weights.len()],
+        false => weights.to_vec(),
+    };
+    let sum: u128 = weights.iter().map(|&w| u128::from(w)).sum();
     let exact: Vec<(u64, u128)> = weights
         .iter()
         .map(|&w| {

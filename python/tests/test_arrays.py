@@ -25,6 +25,9 @@ def layouts(a: np.ndarray) -> Iterator[Tuple[str, np.ndarray]]:
     yield "strided", np.repeat(a, 2, axis=-1)[..., ::2]
     yield "fortran float64", np.asfortranarray(a, dtype=np.float64)
     yield "big-endian", np.asfortranarray(a, dtype=">f4")
+    unaligned = np.ndarray(a.shape, a.dtype, buffer=bytearray(a.nbytes + 1), offset=1)
+    unaligned[...] = a
+    yield "unaligned", unaligned
 
 
 def check_layouts(a: np.ndarray) -> None:
@@ -33,6 +36,7 @@ def check_layouts(a: np.ndarray) -> None:
     for name, v in layouts(a):
         assert np.array_equal(v, a), name
     assert not np.asfortranarray(a).flags.c_contiguous
+    assert not dict(layouts(a))["unaligned"].flags.aligned
 
 
 @pytest.fixture(scope="module")

@@ -174,7 +174,7 @@ impl PyScene {
 
     /// Vertex positions of hidden object `object` (world space, rows in the OBJ's `v`
     /// order), a new `(V, 3)` float32 array. A negative `object` counts from the end.
-    #[pyo3(signature = (object = ObjectIndex::FIRST))]
+    #[pyo3(signature = (object = ObjectIndex::FIRST), text_signature = "($self, object=0)")]
     fn vertices<'py>(
         &self,
         py: Python<'py>,
@@ -187,7 +187,7 @@ impl PyScene {
 
     /// Replaces the vertex positions of hidden object `object` with a `(V, 3)` array
     /// (same V; any real dtype, any memory layout). Non-finite values are refused.
-    #[pyo3(signature = (vertices, object = ObjectIndex::FIRST))]
+    #[pyo3(signature = (vertices, object = ObjectIndex::FIRST), text_signature = "($self, vertices, object=0)")]
     fn set_vertices(
         slf: &Bound<'_, Self>,
         vertices: &Bound<'_, PyAny>,
@@ -209,7 +209,7 @@ impl PyScene {
     }
 
     /// Triangles of hidden object `object`: a `(T, 3)` uint32 array of vertex rows.
-    #[pyo3(signature = (object = ObjectIndex::FIRST))]
+    #[pyo3(signature = (object = ObjectIndex::FIRST), text_signature = "($self, object=0)")]
     fn triangles<'py>(
         &self,
         py: Python<'py>,
@@ -230,7 +230,7 @@ impl PyScene {
     /// Sets the albedo of hidden object `object` (in [0, 1]). An object with per-vertex
     /// albedo is refused (its vertex albedo takes the place of its albedo): change that
     /// with `set_vertex_albedo`, or remove it with `set_vertex_albedo(None, object)`.
-    #[pyo3(signature = (value, object = ObjectIndex::FIRST))]
+    #[pyo3(signature = (value, object = ObjectIndex::FIRST), text_signature = "($self, value, object=0)")]
     fn set_albedo(slf: &Bound<'_, Self>, value: f32, object: ObjectIndex) -> PyResult<()> {
         let mut s = mutable(slf)?;
         let (k, o) = s.object(&object)?;
@@ -253,7 +253,7 @@ impl PyScene {
 
     /// Per-vertex albedo of hidden object `object` (vertex colours): a new `(V,)`
     /// float32 array, or None.
-    #[pyo3(signature = (object = ObjectIndex::FIRST))]
+    #[pyo3(signature = (object = ObjectIndex::FIRST), text_signature = "($self, object=0)")]
     fn vertex_albedo<'py>(
         &self,
         py: Python<'py>,
@@ -265,7 +265,7 @@ impl PyScene {
 
     /// Sets the per-vertex albedo of hidden object `object`: `(V,)` values in [0, 1]
     /// (any real dtype); None removes it (the object's albedo applies again).
-    #[pyo3(signature = (values, object = ObjectIndex::FIRST))]
+    #[pyo3(signature = (values, object = ObjectIndex::FIRST), text_signature = "($self, values, object=0)")]
     fn set_vertex_albedo(
         slf: &Bound<'_, Self>,
         values: &Bound<'_, PyAny>,

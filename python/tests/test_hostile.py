@@ -1,15 +1,22 @@
-"""Issue 17 from Python: inputs that crashed the interpreter or the renderer are refused
-with UmbraError (tests/bad_input.rs and tests/hostile_input.rs have the CLI side)."""
+"""Issues 17 and 52 from Python: inputs that crashed the interpreter or the renderer, or
+were taken silently, are refused with UmbraError (tests/bad_input.rs and
+tests/hostile_input.rs have the CLI side; test_arrays.py has the arrays' memory layouts)."""
 from __future__ import annotations
 
+import inspect
+import json
 import os
+import pickle
 import subprocess
 import sys
+import threading
 
 import numpy as np
 import pytest
 
 import umbra
+from umbra import _umbra
+from scenes_two import two_object_scene
 
 
 def test_deeply_nested_xml_is_an_error_not_a_segfault(tmp_path):
@@ -57,14 +64,7 @@ def test_a_render_larger_than_the_memory_budget_is_refused(monkeypatch):
     assert umbra.render(scene, model="tri3").shape == tuple(scene.shape)
 
 
-# --- Issue 52 (second round) --------------------------------------------------------
-
-import json
-import pickle
-import threading
-
-from umbra import _umbra
-from scenes_two import two_object_scene
+# --- Issue 52 (second round) ---------------------------------------------------------
 
 
 @pytest.fixture()
@@ -200,6 +200,7 @@ ACCESSORS = {
 @pytest.mark.parametrize("name", ACCESSORS)
 def test_negative_object_indices_count_from_the_end(two, name):
     f = ACCESSORS[name]
+    assert inspect.signature(getattr(umbra.Scene, name)).parameters["object"].default == 0
     a, b = two.copy(), two.copy()
     ra, rb = f(a, -1), f(b, 1)
     if name.startswith("set"):

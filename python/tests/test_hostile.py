@@ -265,12 +265,12 @@ def test_a_fit_progress_callback_may_change_the_scene(two):
     changed = []
 
     def progress(d):
-        two.set_albedo(0.5, 1)
+        two.set_albedo(0.25, 1)
         changed.append(d["iteration"])
 
     out = umbra.fit(two, target, init="scene", schedule=[dict(iters=2, solver="adam", lr=0.001)],
                     progress=progress)
-    assert len(changed) == 2 and two.albedo[1] == pytest.approx(0.5)
+    assert len(changed) == 2 and two.albedo[1] == pytest.approx(0.25)
     assert out["render"].shape == target.shape
 
 

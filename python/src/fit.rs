@@ -1,7 +1,7 @@
 //! `umbra.fit`: the binding of `umbra::fit::request::run`, the function `umbra fit`
 //! runs, so Python and the CLI fit by the same code with the same defaults.
 
-use crate::scene::PyScene;
+use crate::scene::{in_use, PyScene};
 use crate::{array_f32, py_shape, run_interruptible, UmbraError};
 use numpy::{IntoPyArray, PyArrayMethods, PyUntypedArrayMethods};
 use optim::checkpoint::LossRecord;
@@ -46,7 +46,7 @@ fn mesh_dict<'py>(py: Python<'py>, m: &optim::Mesh) -> PyResult<Bound<'py, PyDic
 #[allow(clippy::too_many_arguments)]
 pub fn fit<'py>(
     py: Python<'py>,
-    scene: &PyScene,
+    scene: &Bound<'py, PyScene>,
     measured: Option<&Bound<'py, PyAny>>,
     output: PathBuf,
     init: &str,
@@ -70,7 +70,10 @@ pub fn fit<'py>(
     progress: Option<Py<PyAny>>,
     boundary_terms: Option<bool>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let shape = scene.inner.output_shape();
+    // The fit works on its own copy: the scene is free again at once (a progress callback
+    // may change it, another thread may render it).
+    let base = scene.try_borrow().map_err(|_| in_use())?.inner.clone();
+    let shape = base.output_shape();
     let measurement = match measured {
         None => Measurement::Demo { target_spp },
         Some(m) if m.is_instance_of::<pyo3::types::PyString>() || m.hasattr("__fspath__")? => {
@@ -87,7 +90,7 @@ pub fn fit<'py>(
                     py_shape(&shape)
                 )));
             }
-            Measurement::Array(a.as_array().iter().copied().collect())
+            Measurement::Array(crate::c_order(&a).into_owned())
         }
     };
     let schedule = schedule
@@ -122,7 +125,6 @@ pub fn fit<'py>(
     // An exception of the progress callback stops the fit and is raised in its place.
     let failure: Arc<Mutex<Option<PyErr>>> = Arc::default();
     let callback = progress.map(Arc::new);
-    let base = scene.inner.clone();
     let notes: Arc<Mutex<Vec<String>>> = Arc::default();
     let outcome = run_interruptible(py, threads, |work| {
         let (failure, work) = (failure.clone(), work.clone());

@@ -1,8 +1,10 @@
 //! `umbra._umbra`: the Python bindings (PyO3 + rust-numpy). The pure-Python package
 //! `umbra` (python/umbra) wraps these; `_umbra.pyi` has their signatures and types.
 //!
-//! - Arrays cross as numpy arrays in mitransient's layout. A float32 C-contiguous input
-//!   (`adjoint`, `target`) is read in place; renders are moved into numpy without a copy.
+//! - Arrays cross as numpy arrays in mitransient's layout, read by their shape and strides
+//!   (any memory order: Fortran, transposed, negative strides) as NumPy indexes them. A
+//!   float32 C-contiguous input (`adjoint`, `target`) is read in place; renders are moved
+//!   into numpy without a copy.
 //! - Options (`model`, `spp`, ...) override the scene's render settings in one place,
 //!   [`options::resolve`].
 //! - Every Rust error becomes `umbra.UmbraError` with the Rust message (never a crash of
@@ -14,6 +16,7 @@
 
 mod files;
 mod fit;
+mod object_index;
 mod options;
 mod scene;
 mod shards;
@@ -76,8 +79,13 @@ fn as_numpy<'py>(obj: &Bound<'py, PyAny>, dtype: &str, name: &str) -> PyResult<B
             )));
         }
     }
-    np.call_method1("asarray", (obj, dtype))
-        .map_err(|e| UmbraError::new_err(format!("{name}: not an array of real numbers ({e})")))
+    np.call_method1("asarray", (obj, dtype)).map_err(|e| {
+        match e.is_instance_of::<UmbraError>(obj.py()) {
+            // Umbra's own error from the conversion (an `__array__` that changed a scene in use).
+            true => e,
+            false => UmbraError::new_err(format!("{name}: not an array of real numbers ({e})")),
+        }
+    })
 }
 
 /// A real array-like as an owned float64 array (small inputs: vertices, albedos).
@@ -87,24 +95,33 @@ pub fn array_f64(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<ArrayD<f64>> {
     Ok(a.as_array().to_owned())
 }
 
-/// A real array-like as float32: a float32 array is borrowed as it is (no copy), any
-/// other is converted once.
+/// A real array-like as float32: an aligned float32 array in native byte order is
+/// borrowed as it is (no copy), any other is converted once.
 pub fn array_f32<'py>(
     obj: &Bound<'py, PyAny>,
     name: &str,
 ) -> PyResult<PyReadonlyArrayDyn<'py, f32>> {
     if let Ok(a) = obj.extract::<PyReadonlyArrayDyn<'py, f32>>() {
-        return Ok(a);
+        // An unaligned view (np.frombuffer at an odd offset) is copied: it is read
+        // through typed references.
+        if obj.getattr("flags")?.getattr("aligned")?.is_truthy()? {
+            return Ok(a);
+        }
+        return obj.call_method0("copy")?.extract();
     }
     as_numpy(obj, "float32", name)?.extract()
 }
 
-/// The values of a float32 array in C order: in place when it is C-contiguous.
+/// The values of a float32 array in logical C order (by its shape and strides, as NumPy
+/// indexes it): in place when it is C-contiguous. rust-numpy's `as_slice` alone would do
+/// for a Fortran-contiguous array too, in its memory order: the values scrambled.
 pub fn c_order<'a>(a: &'a PyReadonlyArrayDyn<'_, f32>) -> Cow<'a, [f32]> {
-    match a.as_slice() {
-        Ok(s) => Cow::Borrowed(s),
-        Err(_) => Cow::Owned(a.as_array().iter().copied().collect()),
+    if a.is_c_contiguous() {
+        if let Ok(s) = a.as_slice() {
+            return Cow::Borrowed(s);
+        }
     }
+    Cow::Owned(a.as_array().iter().copied().collect())
 }
 
 /// An array input of the render's shape, checked.

@@ -6,7 +6,9 @@
 //! render followed by a gradient of the same scene (what `umbra.torch` does every step)
 //! builds it once.
 
+use crate::object_index::ObjectIndex;
 use crate::{array_f64, py_shape, to_py, UmbraError};
+use numpy::ndarray::ArrayD;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -46,14 +48,75 @@ impl PyScene {
         *self.geometry.get_mut().unwrap_or_else(|p| p.into_inner()) = None;
     }
 
-    fn object(&self, object: usize) -> PyResult<&umbra::scene::HiddenObject> {
-        self.inner.objects.get(object).ok_or_else(|| {
-            UmbraError::new_err(format!(
-                "object {object} does not exist: the scene has {} hidden object(s)",
-                self.inner.objects.len()
-            ))
-        })
+    /// The object `object` names (negative: from the end) and its number.
+    fn object(&self, object: &ObjectIndex) -> PyResult<(usize, &umbra::scene::HiddenObject)> {
+        let k = object.resolve(self.inner.objects.len())?;
+        Ok((k, &self.inner.objects[k]))
     }
+}
+
+/// Why a scene cannot be changed now: a render, gradient or fit reads it (another
+/// thread's, or the one whose callback or input conversion is running).
+pub(crate) fn in_use() -> PyErr {
+    UmbraError::new_err(
+        "the scene is in use by a running render, gradient or fit (in another thread, or the \
+         one running this callback): change it once that has returned, or change a scene.copy()",
+    )
+}
+
+/// The scene to read; an error while it is being changed.
+fn readable<'py>(slf: &Bound<'py, PyScene>) -> PyResult<PyRef<'py, PyScene>> {
+    slf.try_borrow().map_err(|_| in_use())
+}
+
+/// The scene to change; [`in_use`] while something reads it (instead of PyO3's bare
+/// `RuntimeError: Already borrowed`).
+fn mutable<'py>(slf: &Bound<'py, PyScene>) -> PyResult<PyRefMut<'py, PyScene>> {
+    slf.try_borrow_mut().map_err(|_| in_use())
+}
+
+/// `(n, 3)` finite vertices within [`umbra::scene::checks::MAX_COORD`] of the origin.
+fn checked_vertices(vertices: &Bound<'_, PyAny>, name: &str, n: usize) -> PyResult<ArrayD<f64>> {
+    let vertices = array_f64(vertices, name)?;
+    if vertices.shape() != [n, 3] {
+        return Err(UmbraError::new_err(format!(
+            "{name}: shape {}, expected ({n}, 3)",
+            py_shape(vertices.shape())
+        )));
+    }
+    if let Some(i) = vertices.iter().position(|x| !x.is_finite()) {
+        return Err(UmbraError::new_err(format!(
+            "{name}: non-finite value at row {}",
+            i / 3
+        )));
+    }
+    let max = f64::from(umbra::scene::checks::MAX_COORD);
+    if let Some(i) = vertices.iter().position(|x| x.abs() > max) {
+        return Err(UmbraError::new_err(format!(
+            "{name}: row {} has {:e}, more than {max} m from the origin along an axis (Umbra works in metres)",
+            i / 3,
+            vertices.iter().nth(i).copied().unwrap_or(f64::NAN)
+        )));
+    }
+    Ok(vertices)
+}
+
+/// `(n,)` values in [0, 1].
+fn checked_vertex_albedo(values: &Bound<'_, PyAny>, name: &str, n: usize) -> PyResult<Vec<f32>> {
+    let a = array_f64(values, name)?;
+    if a.shape() != [n] {
+        return Err(UmbraError::new_err(format!(
+            "{name}: shape {}, expected ({n},)",
+            py_shape(a.shape())
+        )));
+    }
+    if let Some(i) = a.iter().position(|x| !(0.0..=1.0).contains(x)) {
+        return Err(UmbraError::new_err(format!(
+            "{name}: value {} at vertex {i} is outside [0, 1]",
+            a.iter().nth(i).copied().unwrap_or(f64::NAN)
+        )));
+    }
+    Ok(a.iter().map(|&x| x as f32).collect())
 }
 
 #[pymethods]
@@ -110,61 +173,49 @@ impl PyScene {
     }
 
     /// Vertex positions of hidden object `object` (world space, rows in the OBJ's `v`
-    /// order), a new `(V, 3)` float32 array.
-    #[pyo3(signature = (object = 0))]
-    fn vertices<'py>(&self, py: Python<'py>, object: usize) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let o = self.object(object)?;
+    /// order), a new `(V, 3)` float32 array. A negative `object` counts from the end.
+    #[pyo3(signature = (object = ObjectIndex::FIRST), text_signature = "($self, object=0)")]
+    fn vertices<'py>(
+        &self,
+        py: Python<'py>,
+        object: ObjectIndex,
+    ) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let (_, o) = self.object(&object)?;
         let flat: Vec<f32> = o.mesh.positions.iter().flat_map(|p| p.to_array()).collect();
         flat.into_pyarray(py).reshape([o.mesh.positions.len(), 3])
     }
 
     /// Replaces the vertex positions of hidden object `object` with a `(V, 3)` array
-    /// (same V; any real dtype). Non-finite values are refused.
-    #[pyo3(signature = (vertices, object = 0))]
-    fn set_vertices(&mut self, vertices: &Bound<'_, PyAny>, object: usize) -> PyResult<()> {
-        let n = self.object(object)?.mesh.positions.len();
-        let name = format!("vertices of object {object}");
-        let vertices = array_f64(vertices, &name)?;
-        if vertices.shape() != [n, 3] {
-            return Err(UmbraError::new_err(format!(
-                "{name}: shape {}, expected ({n}, 3)",
-                py_shape(vertices.shape())
-            )));
-        }
-        if let Some(i) = vertices.iter().position(|x| !x.is_finite()) {
-            return Err(UmbraError::new_err(format!(
-                "{name}: non-finite value at row {}",
-                i / 3
-            )));
-        }
-        let max = f64::from(umbra::scene::checks::MAX_COORD);
-        if let Some(i) = vertices.iter().position(|x| x.abs() > max) {
-            return Err(UmbraError::new_err(format!(
-                "{name}: row {} has {:e}, more than {max} m from the origin along an axis (Umbra works in metres)",
-                i / 3,
-                vertices.iter().nth(i).copied().unwrap_or(f64::NAN)
-            )));
-        }
-        for (p, row) in self.inner.objects[object]
-            .mesh
-            .positions
-            .iter_mut()
-            .zip(vertices.rows())
-        {
+    /// (same V; any real dtype, any memory layout). Non-finite values are refused.
+    #[pyo3(signature = (vertices, object = ObjectIndex::FIRST), text_signature = "($self, vertices, object=0)")]
+    fn set_vertices(
+        slf: &Bound<'_, Self>,
+        vertices: &Bound<'_, PyAny>,
+        object: ObjectIndex,
+    ) -> PyResult<()> {
+        let (k, n) = {
+            let s = readable(slf)?;
+            let (k, o) = s.object(&object)?;
+            (k, o.mesh.positions.len())
+        };
+        let vertices = checked_vertices(vertices, &format!("vertices of object {k}"), n)?;
+        let mut s = mutable(slf)?;
+        let rows = vertices.rows();
+        for (p, row) in s.inner.objects[k].mesh.positions.iter_mut().zip(rows) {
             *p = glam::Vec3::new(row[0] as f32, row[1] as f32, row[2] as f32);
         }
-        self.changed();
+        s.changed();
         Ok(())
     }
 
     /// Triangles of hidden object `object`: a `(T, 3)` uint32 array of vertex rows.
-    #[pyo3(signature = (object = 0))]
+    #[pyo3(signature = (object = ObjectIndex::FIRST), text_signature = "($self, object=0)")]
     fn triangles<'py>(
         &self,
         py: Python<'py>,
-        object: usize,
+        object: ObjectIndex,
     ) -> PyResult<Bound<'py, PyArray2<u32>>> {
-        let o = self.object(object)?;
+        let (_, o) = self.object(&object)?;
         let flat: Vec<u32> = o.mesh.triangles.iter().flatten().copied().collect();
         flat.into_pyarray(py).reshape([o.mesh.triangles.len(), 3])
     }
@@ -176,62 +227,66 @@ impl PyScene {
         self.inner.objects.iter().map(|o| o.albedo).collect()
     }
 
-    /// Sets the albedo of hidden object `object` (in [0, 1]).
-    #[pyo3(signature = (value, object = 0))]
-    fn set_albedo(&mut self, value: f32, object: usize) -> PyResult<()> {
-        self.object(object)?;
+    /// Sets the albedo of hidden object `object` (in [0, 1]). An object with per-vertex
+    /// albedo is refused (its vertex albedo takes the place of its albedo): change that
+    /// with `set_vertex_albedo`, or remove it with `set_vertex_albedo(None, object)`.
+    #[pyo3(signature = (value, object = ObjectIndex::FIRST), text_signature = "($self, value, object=0)")]
+    fn set_albedo(slf: &Bound<'_, Self>, value: f32, object: ObjectIndex) -> PyResult<()> {
+        let mut s = mutable(slf)?;
+        let (k, o) = s.object(&object)?;
+        if o.mesh.vertex_albedo.is_some() {
+            return Err(UmbraError::new_err(format!(
+                "set_albedo: object {k} has per-vertex albedo, which takes the place of its \
+                 albedo: change it with set_vertex_albedo(values, {k}), or remove it with \
+                 set_vertex_albedo(None, {k}) first"
+            )));
+        }
         if !(0.0..=1.0).contains(&value) {
             return Err(UmbraError::new_err(format!(
                 "albedo {value} is outside [0, 1]"
             )));
         }
-        self.inner.objects[object].albedo = value;
-        self.changed();
+        s.inner.objects[k].albedo = value;
+        s.changed();
         Ok(())
     }
 
     /// Per-vertex albedo of hidden object `object` (vertex colours): a new `(V,)`
     /// float32 array, or None.
-    #[pyo3(signature = (object = 0))]
+    #[pyo3(signature = (object = ObjectIndex::FIRST), text_signature = "($self, object=0)")]
     fn vertex_albedo<'py>(
         &self,
         py: Python<'py>,
-        object: usize,
+        object: ObjectIndex,
     ) -> PyResult<Option<Bound<'py, PyArray1<f32>>>> {
-        Ok(self
-            .object(object)?
-            .mesh
-            .vertex_albedo
-            .clone()
-            .map(|a| a.into_pyarray(py)))
+        let (_, o) = self.object(&object)?;
+        Ok(o.mesh.vertex_albedo.clone().map(|a| a.into_pyarray(py)))
     }
 
     /// Sets the per-vertex albedo of hidden object `object`: `(V,)` values in [0, 1]
     /// (any real dtype); None removes it (the object's albedo applies again).
-    #[pyo3(signature = (values, object = 0))]
-    fn set_vertex_albedo(&mut self, values: &Bound<'_, PyAny>, object: usize) -> PyResult<()> {
-        let n = self.object(object)?.mesh.positions.len();
-        if values.is_none() {
-            self.inner.objects[object].mesh.vertex_albedo = None;
-            self.changed();
-            return Ok(());
-        }
-        let name = format!("vertex albedo of object {object}");
-        let a = array_f64(values, &name)?;
-        if a.shape() != [n] {
-            return Err(UmbraError::new_err(format!(
-                "{name}: shape {}, expected ({n},)",
-                py_shape(a.shape())
-            )));
-        }
-        if let Some(i) = a.iter().position(|x| !(0.0..=1.0).contains(x)) {
-            return Err(UmbraError::new_err(format!(
-                "{name}: value {} at vertex {i} is outside [0, 1]",
-                a.iter().nth(i).copied().unwrap_or(f64::NAN)
-            )));
-        }
-        self.inner.objects[object].mesh.vertex_albedo = Some(a.iter().map(|&x| x as f32).collect());
-        self.changed();
+    #[pyo3(signature = (values, object = ObjectIndex::FIRST), text_signature = "($self, values, object=0)")]
+    fn set_vertex_albedo(
+        slf: &Bound<'_, Self>,
+        values: &Bound<'_, PyAny>,
+        object: ObjectIndex,
+    ) -> PyResult<()> {
+        let (k, n) = {
+            let s = readable(slf)?;
+            let (k, o) = s.object(&object)?;
+            (k, o.mesh.positions.len())
+        };
+        let values = match values.is_none() {
+            true => None,
+            false => Some(checked_vertex_albedo(
+                values,
+                &format!("vertex albedo of object {k}"),
+                n,
+            )?),
+        };
+        let mut s = mutable(slf)?;
+        s.inner.objects[k].mesh.vertex_albedo = values;
+        s.changed();
         Ok(())
     }
 
@@ -250,7 +305,7 @@ impl PyScene {
     ) -> PyResult<(Bound<'py, PyAny>, (Bound<'py, pyo3::types::PyBytes>,))> {
         let py = slf.py();
         let from = py.import("umbra._umbra")?.getattr("_scene_from_wire")?;
-        let bytes = pyo3::types::PyBytes::new(py, &slf.borrow().inner.to_wire());
+        let bytes = pyo3::types::PyBytes::new(py, &readable(slf)?.inner.to_wire());
         Ok((from, (bytes,)))
     }
 

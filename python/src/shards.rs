@@ -179,6 +179,30 @@ fn rows<const K: usize>(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<[f64
         .collect())
 }
 
+/// The first non-finite value of `rows`: its row and value.
+fn non_finite<const K: usize>(rows: &[[f64; K]]) -> Option<(usize, f64)> {
+    rows.iter()
+        .enumerate()
+        .find_map(|(r, row)| row.iter().find(|x| !x.is_finite()).map(|&x| (r, x)))
+}
+
+/// Refuses a chunk's share with a NaN or an infinity (a worker gone wrong), naming the
+/// chunk: added in, it would make the whole gradient NaN.
+fn check_finite(c: &ChunkGrad) -> PyResult<()> {
+    let mut bad = non_finite(&c.tri_grad).map(|at| ("tri_grad".to_string(), at));
+    for (k, o) in c.vertex_grad.iter().flatten().enumerate() {
+        bad = bad.or_else(|| non_finite(o).map(|at| (format!("vertex_grad of object {k}"), at)));
+    }
+    match bad {
+        None => Ok(()),
+        Some((what, (row, x))) => Err(UmbraError::new_err(format!(
+            "grad_combine: chunk {}'s {what} has {x} at row {row}: a share must be finite \
+             (the worker that computed it went wrong)",
+            c.index
+        ))),
+    }
+}
+
 /// The gradient from every chunk's share (`grad_chunks`' dicts, in any order): the dict
 /// `umbra.grad` returns for an adjoint (no `loss`, no `render`), the same bits.
 #[pyfunction]
@@ -207,14 +231,16 @@ pub fn grad_combine<'py>(
             }
             Some(objects)
         };
-        chunks.push(ChunkGrad {
+        let chunk = ChunkGrad {
             index: item(d, "index")?.extract()?,
             tri_grad: rows::<TRI_PARAMS>(&item(d, "tri_grad")?, "tri_grad")?,
             vertex_grad,
             emitted: item(d, "emitted")?.extract()?,
             truncated: item(d, "truncated")?.extract()?,
             boundary_nodes: item(d, "boundary_nodes")?.extract()?,
-        });
+        };
+        check_finite(&chunk)?;
+        chunks.push(chunk);
     }
     let g = run_interruptible(py, r.threads, |_| {
         let geom = scene.geometry();

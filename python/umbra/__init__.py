@@ -118,7 +118,8 @@ def grad(scene: Scene, adjoint: Optional[npt.ArrayLike] = None, spp: Optional[in
     silhouettes; docs/GRADIENTS.md). False gives the interior derivative alone, biased by
     12-36 % where something occludes, and faster. Use the render's seed for a Monte Carlo model: the
     adjoint pass replays its paths. Inputs of another dtype than float32 are converted
-    once; a C-contiguous float32 array is read in place."""
+    once; a C-contiguous float32 array is read in place. Arrays of any memory order
+    (Fortran, transposed, negative strides) are read by their shape and strides."""
     return _grad(scene, adjoint, target, loss, spp=spp, model=model, seed=seed,
                  threads=threads, max_depth=max_depth, laser_sampling=laser_sampling,
                  hidden_geometry_sampling=hidden_geometry_sampling,

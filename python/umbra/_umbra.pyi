@@ -20,7 +20,11 @@ class UmbraError(Exception):
 class Scene:
     """A loaded scene: capture setup, hidden meshes (vertices and albedos readable and
     settable from numpy), film and render settings. A scene caches its hidden geometry's
-    acceleration structure until a mesh or an albedo changes."""
+    acceleration structure until a mesh or an albedo changes. ``object`` indexes the
+    hidden objects as Python indexes a list (negative: from the end); an index out of
+    range is an ``UmbraError`` naming the range. Arrays are read by their shape and
+    strides (any memory order). A scene cannot be changed while a render, gradient or
+    fit reads it (``UmbraError``; ``fit`` reads its own copy)."""
 
     @property
     def shape(self) -> List[int]:
@@ -37,7 +41,8 @@ class Scene:
         options left unset (keys as ``option_names()``)."""
     @property
     def albedo(self) -> List[float]:
-        """Albedo of every hidden object."""
+        """Albedo of every hidden object (an object with per-vertex albedo uses that
+        instead)."""
     def vertices(self, object: int = 0) -> npt.NDArray[np.float32]:
         """Vertex positions of hidden object ``object``: a new ``(V, 3)`` float32 array
         (world space, m; rows in the OBJ's ``v`` order)."""
@@ -47,7 +52,9 @@ class Scene:
     def triangles(self, object: int = 0) -> npt.NDArray[np.uint32]:
         """Triangles of object ``object``: a ``(T, 3)`` uint32 array of vertex rows."""
     def set_albedo(self, value: float, object: int = 0) -> None:
-        """Sets the albedo of object ``object`` (in [0, 1])."""
+        """Sets the albedo of object ``object`` (in [0, 1]). Refused for an object with
+        per-vertex albedo, which takes the place of its albedo: change that with
+        ``set_vertex_albedo``, or remove it with ``set_vertex_albedo(None, object)``."""
     def vertex_albedo(self, object: int = 0) -> Optional[npt.NDArray[np.float32]]:
         """Per-vertex albedo of object ``object``: a new ``(V,)`` float32 array, or
         None."""
@@ -184,4 +191,5 @@ def grad_chunks(scene: Scene, adjoint_rows: npt.ArrayLike, start: int, stop: int
                 **options: Any) -> List[Dict[str, Any]]:
     """The shares of gradient chunks ``start..stop`` for their adjoint rows."""
 def grad_combine(scene: Scene, parts: Sequence[Dict[str, Any]], **options: Any) -> Dict[str, Any]:
-    """The gradient from every chunk's share, added in chunk order."""
+    """The gradient from every chunk's share, added in chunk order; a share with a
+    non-finite value is refused, naming its chunk."""

@@ -49,7 +49,27 @@ class _Call:
         self.scene, self.kinds, self.opts = scene, kinds, opts
         self.rendered: Optional[umbra.Scene] = None
 
+    def check(self, tensors: Sequence["torch.Tensor"]) -> None:
+        """Refuses a call that would set one parameter twice or drop values: an object in
+        two tensors of one kind, an albedo and a vertex albedo for one object, an albedo
+        tensor with another count of values than its objects."""
+        n = len(self.scene.objects)
+        seen: Dict[Tuple[str, int], str] = {}
+        for (kind, which), t in zip(self.kinds, tensors):
+            objects = list(which) if kind == "albedo" else [which]
+            if kind == "albedo" and t.numel() != len(objects):
+                raise ValueError(f"albedo: {t.numel()} values for {len(objects)} object(s) "
+                                 f"{objects}: one albedo per object")
+            for k in objects:
+                slot = ("vertices" if kind == "vertices" else "albedo", k + n if k < 0 else k)
+                if slot in seen:
+                    what = "two vertex tensors" if kind == "vertices" else "two albedos"
+                    raise ValueError(f"object {k} has {what} ({seen[slot]} and {kind}): "
+                                     "give each parameter once")
+                seen[slot] = kind
+
     def scene_at(self, tensors: Sequence["torch.Tensor"]) -> umbra.Scene:
+        self.check(tensors)
         s = self.scene.copy()
         for (kind, which), t in zip(self.kinds, tensors):
             if kind == "vertices":
@@ -113,7 +133,8 @@ if torch is not None:
         - ``vertices``: a ``ParameterList`` with one ``(V_k, 3)`` tensor per fitted object
           (``objects``, default every hidden object; ``obj=k`` is ``objects=[k]``);
         - ``albedo``: a ``(K,)`` tensor, one per fitted object (``fit_albedo=True`` and
-          ``fit_vertex_albedo=False``), else None;
+          ``fit_vertex_albedo=False``; refused for an object with per-vertex albedo, which
+          takes the place of its albedo), else None;
         - ``vertex_albedo``: with ``fit_vertex_albedo=True``, a ``ParameterList`` with one
           ``(V_k,)`` tensor per fitted object (the mesh's vertex colours, or its albedo
           where it has none), else None.
@@ -139,6 +160,14 @@ if torch is not None:
             for k in self.objects:
                 if not 0 <= k < n:
                     raise ValueError(f"objects: object {k} does not exist: the scene has {n}")
+            twice = [k for i, k in enumerate(self.objects) if k in self.objects[:i]]
+            if twice:
+                raise ValueError(f"objects: object {twice[0]} is given twice")
+            coloured = [k for k in self.objects if scene.vertex_albedo(k) is not None]
+            if fit_albedo and not fit_vertex_albedo and coloured:
+                raise ValueError(f"object {coloured[0]} has per-vertex albedo, which takes the "
+                                 "place of its albedo: fit it with fit_vertex_albedo=True, or "
+                                 "pass fit_albedo=False")
             self.opts = dict(model=model, spp=spp, seed=seed, threads=threads, **options)
             unknown = set(self.opts) - set(umbra.option_names())
             if unknown:

@@ -50,9 +50,17 @@ struct Case {
 #[derive(Clone, Debug)]
 enum Entry {
     Render,
-    Grad { loss: &'static str },
-    Gradcheck { params: u32 },
-    Fit { iters: u32, jitter: Option<f64>, ignore_before: Option<f64> },
+    Grad {
+        loss: &'static str,
+    },
+    Gradcheck {
+        params: u32,
+    },
+    Fit {
+        iters: u32,
+        jitter: Option<f64>,
+        ignore_before: Option<f64>,
+    },
 }
 
 fn entry() -> impl Strategy<Value = Entry> {
@@ -72,10 +80,20 @@ impl Entry {
     fn command(&self, bin: &str) -> String {
         match self {
             Entry::Render => String::new(),
-            Entry::Grad { loss } => format!(" && exec '{bin}' grad scene.toml --target out.npy -o g.npz --loss {loss}"),
-            Entry::Gradcheck { params } => format!(" && exec '{bin}' gradcheck scene.toml --params {params}"),
-            Entry::Fit { iters, jitter, ignore_before } => {
-                let mut c = format!(" && exec '{bin}' fit scene.toml --measured out.npy -o fit -q --iters {iters}");
+            Entry::Grad { loss } => {
+                format!(" && exec '{bin}' grad scene.toml --target out.npy -o g.npz --loss {loss}")
+            }
+            Entry::Gradcheck { params } => {
+                format!(" && exec '{bin}' gradcheck scene.toml --params {params}")
+            }
+            Entry::Fit {
+                iters,
+                jitter,
+                ignore_before,
+            } => {
+                let mut c = format!(
+                    " && exec '{bin}' fit scene.toml --measured out.npy -o fit -q --iters {iters}"
+                );
                 if let Some(j) = jitter {
                     c += &format!(" --jitter {j:e}");
                 }
@@ -239,8 +257,10 @@ fn run(case: &Case, dir: &Path) -> Result<(), String> {
     case.spec().write(dir);
     let _ = std::fs::remove_file(dir.join("out.npy"));
     let _ = std::fs::remove_dir_all(dir.join("fit"));
-    let bin = std::env::var("UMBRA_FUZZ_BIN").unwrap_or_else(|_| env!("CARGO_BIN_EXE_umbra").into());
-    let mut cmd = format!("ulimit -v {ULIMIT_KIB}; '{bin}' render scene.toml -o out.npy -q --no-preview");
+    let bin =
+        std::env::var("UMBRA_FUZZ_BIN").unwrap_or_else(|_| env!("CARGO_BIN_EXE_umbra").into());
+    let mut cmd =
+        format!("ulimit -v {ULIMIT_KIB}; '{bin}' render scene.toml -o out.npy -q --no-preview");
     if case.threads > 0 {
         cmd += &format!(" --threads {}", case.threads);
     }

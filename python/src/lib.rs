@@ -34,6 +34,7 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use umbra::adjoint::Loss;
 use umbra::scene::Model;
+use umbra::transport::silence;
 use umbra::transport::{Progress, RenderOptions, Renderer};
 
 create_exception!(
@@ -199,7 +200,24 @@ fn render<'py>(
         let geom = scene.geometry();
         umbra::transport::render(s, &geom, &opts, Some(&**progress))
     })?;
+    if silence::all_zero(&t.data) {
+        warn(
+            py,
+            &format!("the render is zero everywhere: {}", silence::zero_reason(s)),
+        )?;
+    }
     t.data.into_pyarray(py).reshape(t.shape)
+}
+
+/// A `UserWarning` from the caller's line (what the CLI prints as `warning:`).
+fn warn(py: Python<'_>, msg: &str) -> PyResult<()> {
+    let msg = std::ffi::CString::new(msg.replace('\0', " ")).expect("no NUL left");
+    PyErr::warn(
+        py,
+        &py.get_type::<pyo3::exceptions::PyUserWarning>(),
+        &msg,
+        1,
+    )
 }
 
 /// `dLoss/dθ`, for the adjoint histogram `adjoint` (`dLoss/dH`) or for `loss` against
@@ -254,6 +272,17 @@ fn grad<'py>(
         let g = umbra::adjoint::gradient(s, &geom, &opts, &adj, Some(&**progress))?;
         Ok((value, primal, g))
     })?;
+    if let Some(h) = &primal {
+        if silence::all_zero(&h.data) {
+            let why = silence::zero_reason(s);
+            warn(
+                py,
+                &format!("the render is zero everywhere, so the gradient is too: {why}"),
+            )?;
+        } else if h.data.as_slice() == values {
+            warn(py, "the render equals the target bin for bin: the loss and the gradient are 0 (a target rendered with the same seed and spp reproduces the render exactly; use another seed, or a measured target)")?;
+        }
+    }
     let out = gradient_dict(py, g)?;
     out.set_item("loss", value)?;
     match primal {

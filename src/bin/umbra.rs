@@ -291,9 +291,13 @@ fn render(args: RenderArgs) -> umbra::Result<()> {
         let b = ProgressBar::new(total);
         b.set_style(
             ProgressStyle::with_template(&format!(
-                "{{spinner}} [{{elapsed_precise}}] {{bar:40}} {{percent:>3}}% {{human_pos}}/{{human_len}} {unit} ({{per_sec}}, ETA {{eta}})"
+                "{{spinner}} [{{elapsed_precise}}] {{bar:40}} {{percent:>3}}% {{human_pos}}/{{human_len}} {unit} ({{rate}}, ETA {{eta}})"
             ))
-            .expect("template"),
+            .expect("template")
+            // indicatif's own {per_sec} prints "3,015,942.4269/s".
+            .with_key("rate", |s: &indicatif::ProgressState, w: &mut dyn std::fmt::Write| {
+                let _ = write!(w, "{}/s", umbra::io::plot::si(s.per_sec()));
+            }),
         );
         b
     };

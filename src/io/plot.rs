@@ -103,6 +103,7 @@ pub fn log_chart(
         .label_style((FAMILY, 14))
         .light_line_style(WHITE)
         .y_labels(10)
+        .x_label_formatter(&|v| tick(*v))
         .y_label_formatter(&|v| format!("{:.2e}", 10f64.powf(*v)))
         .draw()
         .map_err(|e| err(path, e))?;
@@ -479,4 +480,49 @@ pub fn labelled_maps(path: &Path, title: &str, panels: &[MapPanel], footer: &str
     }
     root.present().map_err(|e| err(path, e))?;
     Ok(())
+}
+
+/// A tick label without a trailing ".0" on whole numbers ("20", not "20.0").
+pub fn tick(v: f64) -> String {
+    if v.fract() == 0.0 && v.abs() < 1e15 {
+        format!("{}", v as i64)
+    } else {
+        let s = format!("{v:.3}");
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    }
+}
+
+/// `v` with an SI prefix and three significant figures ("3.02 M", "950 k", "12.5").
+pub fn si(v: f64) -> String {
+    if !v.is_finite() {
+        return "-".into();
+    }
+    let (scaled, prefix) = [(1e12, " T"), (1e9, " G"), (1e6, " M"), (1e3, " k")]
+        .iter()
+        .find(|(s, _)| v.abs() >= *s)
+        .map_or((v, ""), |&(s, p)| (v / s, p));
+    let digits = if scaled.abs() >= 100.0 {
+        0
+    } else if scaled.abs() >= 10.0 {
+        1
+    } else {
+        2
+    };
+    format!("{scaled:.digits$}{prefix}")
+}
+
+#[cfg(test)]
+mod label_tests {
+    use super::*;
+
+    #[test]
+    fn ticks_and_rates_read_as_numbers() {
+        assert_eq!(
+            (tick(20.0), tick(2.5), tick(0.125)),
+            ("20".into(), "2.5".into(), "0.125".into())
+        );
+        assert_eq!(si(3_015_942.426_9), "3.02 M");
+        assert_eq!(si(950_000.0), "950 k");
+        assert_eq!(si(12.5), "12.5");
+    }
 }

@@ -8,8 +8,9 @@ use umbra::transport::{silence, RenderOptions};
 
 #[derive(clap::Args)]
 pub struct GradArgs {
-    /// Scene file: Umbra TOML (.toml) or mitransient-style Mitsuba XML (.xml).
-    scene: PathBuf,
+    /// Scene file: Umbra TOML (.toml) or mitransient-style Mitsuba XML (.xml); default:
+    /// the built-in default scene.
+    scene: Option<PathBuf>,
     /// The measured transient (.npy, the render's shape): the loss is --loss against it.
     #[arg(long, required_unless_present = "adjoint", conflicts_with = "adjoint")]
     target: Option<PathBuf>,
@@ -37,8 +38,9 @@ pub struct GradArgs {
 
 #[derive(clap::Args)]
 pub struct GradcheckArgs {
-    /// Scene file: Umbra TOML (.toml) or mitransient-style Mitsuba XML (.xml).
-    scene: PathBuf,
+    /// Scene file: Umbra TOML (.toml) or mitransient-style Mitsuba XML (.xml); default:
+    /// the built-in default scene.
+    scene: Option<PathBuf>,
     #[command(flatten)]
     flags: RenderFlags,
     /// Vertex coordinates checked per object (plus each object's albedo).
@@ -57,6 +59,35 @@ pub struct GradcheckArgs {
     /// Set a Mitsuba XML `$name` parameter, e.g. -D spp=64.
     #[arg(short = 'D', value_name = "NAME=VALUE")]
     define: Vec<String>,
+    /// Check mc3 / path on the scene's box bins as they are (their vertex gradients
+    /// then lack the time-of-flight term, and the check fails); by default box bins are
+    /// checked on a Gaussian kernel of one bin.
+    #[arg(long)]
+    keep_box: bool,
+}
+
+/// Box bins give mc3 and path vertex gradients no time-of-flight term (a box's derivative
+/// in a path's length is zero), so their check could never pass: unless `keep`, the
+/// check runs on a Gaussian kernel of one bin instead, and says so.
+fn gaussian_for_box_bins(scene: &mut umbra::Scene, model: Model, keep: bool) {
+    use umbra::scene::KernelSpec;
+    if keep || model == Model::Tri3 || scene.film.kernel != KernelSpec::Box {
+        return;
+    }
+    let sigma_opl = scene.film.bin_width_opl;
+    scene.film.kernel = KernelSpec::Gaussian { sigma_opl };
+    eprintln!(
+        "gradcheck: the scene's box bins give {} vertex gradients no time-of-flight term; checking on a Gaussian kernel of one bin instead (film.kernel = \"gaussian\", sigma_opl = {sigma_opl} m): the gradient to fit with (--keep-box checks the box bins as they are)",
+        model.name()
+    );
+}
+
+/// What a summary line says of the sampling: tri3 is deterministic (no spp).
+fn sampling(opts: &RenderOptions) -> String {
+    match opts.model {
+        Model::Tri3 => format!("subdivision {}", opts.subdivision),
+        _ => format!("{} spp", opts.spp),
+    }
 }
 
 /// Ctrl-C ends `command` at once with a message (exit 130). The gradient is written
@@ -85,7 +116,7 @@ pub fn grad(args: GradArgs) -> umbra::Result<()> {
             args.output.display()
         )));
     }
-    let mut scene = load_scene(Some(&args.scene), &args.define)?;
+    let mut scene = load_scene(args.scene.as_deref(), &args.define)?;
     for w in &scene.warnings {
         eprintln!("warning: {w}");
     }
@@ -174,9 +205,9 @@ pub fn grad(args: GradArgs) -> umbra::Result<()> {
         "no boundary terms".to_string()
     };
     eprintln!(
-        "umbra: loss {value:.6e}, |d/dvertices| {norm:.3e}, d/dalbedo {:?} ({} spp, {boundary}, {:.2} s) -> {}",
+        "umbra: loss {value:.6e}, |d/dvertices| {norm:.3e}, d/dalbedo {:?} ({}, {boundary}, {:.2} s) -> {}",
         g.albedo,
-        opts.spp,
+        sampling(&opts),
         t0.elapsed().as_secs_f64(),
         args.output.display()
     );
@@ -185,9 +216,10 @@ pub fn grad(args: GradArgs) -> umbra::Result<()> {
 
 pub fn gradcheck(args: GradcheckArgs) -> umbra::Result<()> {
     use umbra::adjoint::{self, check};
-    let mut scene = load_scene(Some(&args.scene), &args.define)?;
+    let mut scene = load_scene(args.scene.as_deref(), &args.define)?;
     let mut opts = args.flags.overrides().apply(&mut scene)?;
     resolve_auto(&scene, &mut opts)?;
+    gaussian_for_box_bins(&mut scene, opts.model, args.keep_box);
     if !(args.tolerance.is_finite() && args.tolerance > 0.0) {
         return Err(umbra::Error::Invalid(format!(
             "--tolerance: must be a number > 0, got {}",
@@ -226,10 +258,10 @@ pub fn gradcheck(args: GradcheckArgs) -> umbra::Result<()> {
         println!(" {e:.2e} |");
     }
     println!(
-        "{} parameters, model {}, {} spp; worst relative error {worst:.2e} (tolerance {:.0e})",
+        "{} parameters, model {}, {}; worst relative error {worst:.2e} (tolerance {:.0e})",
         rows.len(),
         opts.model.name(),
-        opts.spp,
+        sampling(&opts),
         args.tolerance
     );
     if rows.iter().any(|r| r.boundary != 0.0) {

@@ -1,0 +1,76 @@
+//! A newcomer's first commands (issue 51): every subcommand takes the built-in scene when
+//! none is given, `gradcheck` passes on it for every model (box bins checked on a
+//! Gaussian of one bin, said in the output), and summaries say what applies to the model.
+
+use std::process::Command;
+
+fn umbra(args: &[&str]) -> (Option<i32>, String, String) {
+    let dir = std::env::temp_dir().join(format!("umbra-first-hour-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_umbra"))
+        .args(args)
+        .current_dir(&dir)
+        .output()
+        .unwrap();
+    (
+        o.status.code(),
+        String::from_utf8_lossy(&o.stdout).into_owned(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn gradcheck_passes_on_the_built_in_scene_for_every_model() {
+    for model in ["tri3", "mc3", "path"] {
+        let (code, out, err) = umbra(&["gradcheck", "--model", model, "--params", "2"]);
+        assert_eq!(code, Some(0), "{model}: {out}\n{err}");
+        let summary = out
+            .lines()
+            .find(|l| l.contains("worst relative error"))
+            .unwrap_or_default();
+        match model {
+            "tri3" => assert!(
+                summary.contains("subdivision") && !summary.contains("spp"),
+                "{summary}"
+            ),
+            _ => {
+                assert!(summary.contains("64 spp"), "{summary}");
+                assert!(
+                    err.contains("checking on a Gaussian kernel of one bin"),
+                    "{err}"
+                );
+            }
+        }
+    }
+    // --keep-box checks the box bins as they are, and says they lack the term.
+    let (_, _, err) = umbra(&["gradcheck", "--model", "mc3", "--params", "2", "--keep-box"]);
+    assert!(err.contains("miss the time-of-flight term"), "{err}");
+}
+
+#[test]
+fn grad_takes_the_built_in_scene_too() {
+    let (code, _, err) = umbra(&[
+        "render",
+        "--model",
+        "tri3",
+        "-o",
+        "t.npy",
+        "-q",
+        "--no-preview",
+        "--seed",
+        "3",
+    ]);
+    assert_eq!(code, Some(0), "{err}");
+    let (code, _, err) = umbra(&[
+        "grad", "--model", "tri3", "--target", "t.npy", "-o", "g.npz",
+    ]);
+    assert_eq!(code, Some(0), "{err}");
+    let summary = err
+        .lines()
+        .find(|l| l.starts_with("umbra: loss"))
+        .unwrap_or_default();
+    assert!(
+        summary.contains("subdivision") && !summary.contains("spp"),
+        "{err}"
+    );
+}

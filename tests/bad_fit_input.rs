@@ -9,9 +9,9 @@ mod common;
 use common::*;
 use std::cell::RefCell;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Output};
 use std::rc::Rc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 use umbra::fit::request::{run, Front};
 use umbra::fit::{FitRequest, Measurement};
 
@@ -32,28 +32,13 @@ const SCHEDULE: &str = "checkpoint_every = 2\n[[stage]]\niters = 3\nlr = 0.01\nl
 
 /// `umbra fit` with `args`, killed after `limit` (then the output says so).
 fn umbra_fit(scene: &Path, out: &Path, args: &[&str], limit: Duration) -> Output {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_umbra"))
-        .arg("fit")
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_umbra"));
+    cmd.arg("fit")
         .arg(scene)
         .args(["-q", "--target-spp", "16", "-o"])
         .arg(out)
-        .args(args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let start = Instant::now();
-    while child.try_wait().unwrap().is_none() {
-        if start.elapsed() > limit {
-            let _ = child.kill();
-            let mut o = child.wait_with_output().unwrap();
-            o.stderr
-                .extend_from_slice(format!("\n(killed after {limit:?}: HUNG)").as_bytes());
-            return o;
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    child.wait_with_output().unwrap()
+        .args(args);
+    output_within(&mut cmd, limit)
 }
 
 fn stderr(o: &Output) -> String {

@@ -14,25 +14,9 @@ fn umbra(dir: &Path, args: &[&str]) -> Output {
 }
 
 fn umbra_in(dir: &Path, args: &[&str], env: &[(&str, &str)]) -> Output {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_umbra"))
-        .args(args)
-        .envs(env.iter().copied())
-        .current_dir(dir)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let start = Instant::now();
-    while child.try_wait().unwrap().is_none() {
-        if start.elapsed() > Duration::from_secs(60) {
-            let _ = child.kill();
-            let mut o = child.wait_with_output().unwrap();
-            o.stderr.extend_from_slice(b"\n(killed after 60 s: HUNG)");
-            return o;
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    child.wait_with_output().unwrap()
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_umbra"));
+    cmd.args(args).envs(env.iter().copied()).current_dir(dir);
+    output_within(&mut cmd, Duration::from_secs(60))
 }
 
 fn err(o: &Output) -> String {
@@ -282,20 +266,25 @@ fn two_fits_into_one_folder_the_second_is_refused() {
         );
         std::thread::sleep(Duration::from_millis(20));
     }
-    let o = umbra(
-        &dir,
-        &[
-            "fit",
-            s,
-            "--measured",
-            "target.npy",
-            "-o",
-            "fit",
-            "-q",
-            "--iters",
-            "2",
-        ],
-    );
+    let fit = |more: &[&str]| {
+        let args = [
+            &[
+                "fit",
+                s,
+                "--measured",
+                "target.npy",
+                "-o",
+                "fit",
+                "-q",
+                "--iters",
+                "2",
+            ],
+            more,
+        ]
+        .concat();
+        umbra(&dir, &args)
+    };
+    let o = fit(&[]);
     let mut first = first;
     let _ = first.kill();
     let _ = first.wait();
@@ -307,21 +296,7 @@ fn two_fits_into_one_folder_the_second_is_refused() {
         ],
     );
     // Once the first is gone, the folder is free again (the lock died with it).
-    let o = umbra(
-        &dir,
-        &[
-            "fit",
-            s,
-            "--measured",
-            "target.npy",
-            "-o",
-            "fit",
-            "-q",
-            "--iters",
-            "2",
-            "--resume",
-        ],
-    );
+    let o = fit(&["--resume"]);
     assert!(!err(&o).contains("in use by another run"), "{}", err(&o));
     std::fs::remove_dir_all(&dir).ok();
 }

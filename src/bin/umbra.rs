@@ -63,9 +63,10 @@ enum Command {
     /// Write a measurement in another format with the scene's capture geometry: .npy,
     /// .exr or y-tal .hdf5 (e.g. a mitransient .npy for y-tal's reconstructions).
     Convert(ConvertArgs),
-    /// Built-in benchmarks: `tri3` (speed on the 10k-triangle reference case and the
-    /// error-vs-subdivision table); `grad` (adjoint against forward time, and the
-    /// adjoint's peak memory against spp).
+    /// Built-in benchmarks: tri3 (speed and error against subdivision), grad (adjoint
+    /// against forward time and memory), tri3-grad, ablation (the sampling techniques),
+    /// accuracy (error against time per model), grad-accuracy, scaling, rays (the path
+    /// tracer's rays/s against obvhs's).
     Bench(BenchArgs),
     /// Write the scene for mitransient 1.3.1: Mitsuba XML plus one world-space OBJ per
     /// hidden object (what mitransient cannot express is refused, naming the field).

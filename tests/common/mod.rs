@@ -333,3 +333,48 @@ pub fn objective(
         irf: None,
     }
 }
+
+/// Runs `cmd` with piped stdout and stderr, killed after `limit` (its stderr then ends
+/// with "HUNG"); the pipes are read as the child writes, so a chatty child cannot block.
+pub fn output_within(
+    cmd: &mut std::process::Command,
+    limit: std::time::Duration,
+) -> std::process::Output {
+    use std::process::Stdio;
+    let mut child = cmd
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let drain = |mut p: Box<dyn std::io::Read + Send>| {
+        std::thread::spawn(move || {
+            let mut b = Vec::new();
+            let _ = p.read_to_end(&mut b);
+            b
+        })
+    };
+    let out = drain(Box::new(child.stdout.take().unwrap()));
+    let err = drain(Box::new(child.stderr.take().unwrap()));
+    let start = std::time::Instant::now();
+    let mut hung = false;
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            hung = true;
+            break child.wait().unwrap();
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    let mut stderr = err.join().unwrap();
+    if hung {
+        stderr.extend_from_slice(format!("\n(killed after {limit:?}: HUNG)").as_bytes());
+    }
+    std::process::Output {
+        status,
+        stdout: out.join().unwrap(),
+        stderr,
+    }
+}

@@ -40,7 +40,14 @@ pub fn zero_reason(scene: &Scene) -> String {
     {
         return "every hidden object is one-sided (two_sided = false) and faces away from the relay wall: flip its faces or set two_sided = true".to_string();
     }
-    "no light path reached a sensor point (the hidden objects may be occluded from the wall, or their signal is below float32's range)".to_string()
+    let t = &scene.render.techniques;
+    if scene.laser.spot_radius > 0.0 && !t.laser_sampling {
+        return format!(
+            "no sampled path landed on the laser spot (radius {} m): with laser sampling off only BSDF-sampled paths reach it, which takes many samples; turn render.laser_sampling on or raise spp",
+            scene.laser.spot_radius
+        );
+    }
+    "no light path reached a sensor point: the hidden objects may be occluded from the wall, a Monte Carlo render may have too few samples (spp), or the signal is below float32's range".to_string()
 }
 
 /// The film window against the geometry's three-bounce OPL range, if it misses it.

@@ -28,8 +28,17 @@ CHILD = textwrap.dedent(
     good = umbra.render(scene, model="tri3")
     wild = [0, -1, 1, 2, 7, 1e30, -1e30, math.nan, math.inf, 1e-30, 3, "x", None, 2**70, True]
 
+    sane = {{
+        "spp": [1, 4, 16], "model": ["tri3", "mc3", "path", "auto"], "seed": [0, 1, 5],
+        "threads": [1, 2], "max_depth": [3, 4, 5], "subdivision": [0.1, 0.3],
+        "visibility": ["none", "centroid"], "iters": [1, 2, 3], "jitter": [0.0, 0.004],
+        "ignore_before": [0.0, 0.5], "time_offset": [0.0, 0.01], "target_spp": [16],
+        "bin": [(1, 1), (2, 1)], "background": ["none", "constant", "per-bin"],
+    }}
+
     def value(name):
-        return rng.choice(wild)
+        # Half sane values, so calls reach the renderer and the fit, half wild ones.
+        return rng.choice(sane[name] if rng.random() < 0.5 else wild)
 
     def array():
         return rng.choice([

@@ -93,3 +93,29 @@ fn gradcheck_on_an_occluded_scene_sets_aside_what_finite_differences_cannot_chec
         .unwrap_or_default();
     assert!(summary.contains("6 parameters (4 checked)"), "{summary}");
 }
+
+/// The README's three pictures are `umbra render`'s previews of the built-in scene, byte
+/// for byte (regenerate: `umbra render -o /tmp/d/default.npy` and copy the PNGs to docs/).
+#[test]
+fn the_readme_pictures_are_what_render_writes() {
+    let dir = std::env::temp_dir().join(format!("umbra-readme-pictures-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("default.npy");
+    let (code, _, err) = umbra(&["render", "-q", "-o", out.to_str().unwrap()]);
+    assert_eq!(code, Some(0), "{err}");
+    for name in [
+        "default_streak.png",
+        "default_image.png",
+        "default_first_arrival.png",
+    ] {
+        let docs = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("docs")
+            .join(name);
+        let same = std::fs::read(dir.join(name)).unwrap() == std::fs::read(&docs).unwrap();
+        assert!(
+            same,
+            "docs/{name} is not what `umbra render` writes now: regenerate it"
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -331,7 +331,8 @@ fn render(args: RenderArgs) -> umbra::Result<()> {
     let mut previews = Vec::new();
     // No previews beside a device or a pipe (`-o /dev/null` must not make /dev/null_*.png).
     if !args.no_preview && !optim::atomic::is_special(&args.output) {
-        previews = umbra::io::preview::write_previews(&args.output, &transient)?;
+        let axes = umbra::io::preview::PreviewAxes::of(&scene);
+        previews = umbra::io::preview::write_previews(&args.output, &transient, &axes)?;
     }
     let detail = match renderer.model {
         Model::Tri3 => format!(

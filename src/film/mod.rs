@@ -25,6 +25,7 @@ pub mod jitter;
 pub mod normal;
 mod pulse;
 mod pulse_reverse;
+pub mod response;
 pub use pulse_reverse::Arith;
 
 pub use box_pulse::{splat_lanes, BoxPulse, LaneRow, PulseLanes, LANES, SPLAT_PAD};

@@ -72,7 +72,7 @@ impl Response {
         let bad_tail = self.tails.iter().any(|&(w, tau)| {
             !(w.is_finite() && (0.0..=1.0).contains(&w) && tau.is_finite() && tau > 0.0)
         });
-        if !(self.sigma.is_finite() && self.sigma > 0.0) || !self.t0.is_finite() {
+        if !(self.sigma.is_finite() && self.sigma > 0.0 && self.t0.is_finite()) {
             Err(format!(
                 "response: σ = {} and t0 = {} must be finite, σ > 0",
                 self.sigma, self.t0

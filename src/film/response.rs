@@ -118,6 +118,58 @@ impl ResponseKernel {
     pub fn mass(&self) -> f64 {
         self.taps.iter().sum()
     }
+
+    /// Calls `f(t, s, j)` for every output bin `t`, input bin `s = t − lag_j` and tap `j`
+    /// of a row of `bins`.
+    fn for_each(&self, bins: usize, mut f: impl FnMut(usize, usize, usize)) {
+        for t in 0..bins {
+            for j in 0..self.taps.len() {
+                let s = t as isize - (self.first + j as isize);
+                if (0..bins as isize).contains(&s) {
+                    f(t, s as usize, j);
+                }
+            }
+        }
+    }
+
+    /// The rows of `data` (each `bins` long) blurred by the response:
+    /// `H'[t] = Σ_j taps[j] H[t − lag_j]`, light arriving before bin 0 or after the last
+    /// bin lost, as a detector loses it.
+    pub fn apply(&self, data: &[f32], bins: usize) -> Vec<f32> {
+        let mut out = vec![0.0f32; data.len()];
+        for (row, o) in data.chunks_exact(bins).zip(out.chunks_exact_mut(bins)) {
+            let mut acc = vec![0.0f64; bins];
+            self.for_each(bins, |t, s, j| acc[t] += self.taps[j] * f64::from(row[s]));
+            o.iter_mut().zip(&acc).for_each(|(o, a)| *o = *a as f32);
+        }
+        out
+    }
+
+    /// The transpose of [`ResponseKernel::apply`]: `dL/dH[s] = Σ_j taps[j] dL/dH'[s + lag_j]`.
+    pub fn apply_transpose(&self, adjoint: &[f32], bins: usize) -> Vec<f32> {
+        let mut out = vec![0.0f32; adjoint.len()];
+        for (row, o) in adjoint.chunks_exact(bins).zip(out.chunks_exact_mut(bins)) {
+            let mut acc = vec![0.0f64; bins];
+            self.for_each(bins, |t, s, j| acc[s] += self.taps[j] * f64::from(row[t]));
+            o.iter_mut().zip(&acc).for_each(|(o, a)| *o = *a as f32);
+        }
+        out
+    }
+
+    /// `dL/dθ` for every response parameter, given the unblurred `render` and the adjoint
+    /// of the blurred one: `Σ_t dL/dH'[t] Σ_j ∂taps[j]/∂θ H[t − lag_j]`.
+    pub fn param_gradient(&self, render: &[f32], adjoint: &[f32], bins: usize) -> [f64; PARAMS] {
+        let mut g = [0.0f64; PARAMS];
+        for (h, a) in render.chunks_exact(bins).zip(adjoint.chunks_exact(bins)) {
+            self.for_each(bins, |t, s, j| {
+                let w = f64::from(a[t]) * f64::from(h[s]);
+                g.iter_mut()
+                    .zip(&self.d_taps[j])
+                    .for_each(|(g, d)| *g += w * d);
+            });
+        }
+        g
+    }
 }
 
 /// The response's distribution function at `t`: `w_0 Φ(u) + Σ_i w_i F_τi(t)`.
@@ -213,6 +265,84 @@ mod tests {
                     d[j]
                 );
             }
+        }
+    }
+
+    /// Two rows of a pulse train, and a fixed adjoint (the loss is linear in H').
+    fn rows(bins: usize) -> (Vec<f32>, Vec<f32>) {
+        let h: Vec<f32> = (0..2 * bins)
+            .map(|i| {
+                if i % bins == 20 || i % bins == 61 {
+                    1.0
+                } else {
+                    0.01 * (i % 7) as f32
+                }
+            })
+            .collect();
+        let adj: Vec<f32> = (0..2 * bins)
+            .map(|i| ((i * 37 % 11) as f32 - 5.0) * 0.1)
+            .collect();
+        (h, adj)
+    }
+
+    #[test]
+    fn the_blur_its_transpose_and_its_parameter_gradient_agree() {
+        let bins = 400;
+        let r = spad();
+        let k = r.kernel(BIN);
+        let (h, adj) = rows(bins);
+        let dot = |a: &[f32], b: &[f32]| {
+            a.iter()
+                .zip(b)
+                .map(|(x, y)| f64::from(*x) * f64::from(*y))
+                .sum::<f64>()
+        };
+        // <A h, y> = <h, Aᵀ y>.
+        let (lhs, rhs) = (
+            dot(&k.apply(&h, bins), &adj),
+            dot(&h, &k.apply_transpose(&adj, bins)),
+        );
+        assert!(
+            (lhs - rhs).abs() < 1e-5 * lhs.abs().max(1.0),
+            "{lhs} against {rhs}"
+        );
+        // dL/dθ against central differences of L(θ) = <A(θ) h, adj>.
+        let g = k.param_gradient(&h, &adj, bins);
+        let p = r.params();
+        for j in 0..2 + 2 * r.tails.len() {
+            let step = 1e-5 * p[j].abs().max(1e-3);
+            let loss = |d: f64| {
+                let mut q = p;
+                q[j] += d;
+                let tails = (0..r.tails.len())
+                    .map(|i| (q[2 + 2 * i], q[3 + 2 * i]))
+                    .collect();
+                let kk = Response {
+                    sigma: q[0],
+                    t0: q[1],
+                    tails,
+                }
+                .kernel(BIN);
+                // The same support, so the difference sees the taps move, not the cut.
+                assert_eq!((kk.first, kk.taps.len()), (k.first, k.taps.len()));
+                let mut out = vec![0.0f64; h.len()];
+                for (row, o) in h.chunks_exact(bins).zip(out.chunks_exact_mut(bins)) {
+                    kk.for_each(bins, |t, s, i| o[t] += kk.taps[i] * f64::from(row[s]));
+                }
+                out.iter()
+                    .zip(&adj)
+                    .map(|(x, a)| x * f64::from(*a))
+                    .sum::<f64>()
+            };
+            let fd = (loss(step) - loss(-step)) / (2.0 * step);
+            assert!(
+                (g[j] - fd).abs()
+                    <= 1e-4
+                        * fd.abs()
+                            .max(1e-3 * g.iter().fold(0.0f64, |m, v| m.max(v.abs()))),
+                "param {j}: {} against {fd}",
+                g[j]
+            );
         }
     }
 

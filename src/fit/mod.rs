@@ -26,6 +26,7 @@ pub mod intensity;
 mod iters;
 pub mod metrics;
 pub mod objective;
+pub mod point_background;
 mod prepare;
 pub mod reconstruction;
 pub mod request;

@@ -19,6 +19,11 @@ fn umbra_in(dir: &Path, args: &[&str], env: &[(&str, &str)]) -> Output {
     output_within(&mut cmd, Duration::from_secs(60))
 }
 
+/// `umbra` with the words of `line` (no word holds a space).
+fn cli(dir: &Path, line: &str) -> Output {
+    umbra(dir, &line.split_whitespace().collect::<Vec<_>>())
+}
+
 fn err(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
@@ -65,16 +70,12 @@ fn no_temporaries(dir: &Path) {
 fn scene_with_target(name: &str, spec: &SceneSpec) -> (PathBuf, PathBuf) {
     let dir = tmp_dir(name);
     let scene = spec.write(&dir);
-    let o = umbra(
+    let o = cli(
         &dir,
-        &[
-            "render",
-            scene.to_str().unwrap(),
-            "-o",
-            "target.npy",
-            "-q",
-            "--no-preview",
-        ],
+        &format!(
+            "render {} -o target.npy -q --no-preview",
+            scene.to_str().unwrap()
+        ),
     );
     assert!(o.status.success(), "{}", err(&o));
     (dir, scene)
@@ -92,21 +93,12 @@ fn crashes_are_clear_errors() {
     // --jitter far beyond the film aborted on a 12.5 TB allocation (1e10) or a capacity
     // overflow (1e30).
     for j in ["1e10", "1e30"] {
-        let o = umbra(
+        let o = cli(
             &dir,
-            &[
-                "fit",
-                s,
-                "--measured",
-                "target.npy",
-                "-o",
-                "fit",
-                "-q",
-                "--jitter",
-                j,
-                "--iters",
-                "1",
-            ],
+            &format!(
+                "fit {} --measured target.npy -o fit -q --jitter {} --iters 1",
+                s, j
+            ),
         );
         refused(&o, &["--jitter", "longer than the whole film"]);
     }
@@ -119,18 +111,9 @@ fn crashes_are_clear_errors() {
     let e = empty.write(&dir.join("empty"));
     let e = e.to_str().unwrap();
     for model in ["mc3", "path", "tri3"] {
-        let o = umbra(
+        let o = cli(
             &dir,
-            &[
-                "grad",
-                e,
-                "--target",
-                "target.npy",
-                "--model",
-                model,
-                "-o",
-                "g.npz",
-            ],
+            &format!("grad {} --target target.npy --model {} -o g.npz", e, model),
         );
         refused(&o, &["no hidden objects"]);
         let o = umbra(&dir, &["gradcheck", e, "--model", model]);
@@ -343,16 +326,12 @@ fn renders_of_nothing_are_warned_with_their_cause() {
     ];
     for (i, (spec, says)) in cases.into_iter().enumerate() {
         let scene = spec.write(&dir.join(format!("c{i}")));
-        let o = umbra(
+        let o = cli(
             &dir,
-            &[
-                "render",
-                scene.to_str().unwrap(),
-                "-o",
-                "z.npy",
-                "-q",
-                "--no-preview",
-            ],
+            &format!(
+                "render {} -o z.npy -q --no-preview",
+                scene.to_str().unwrap()
+            ),
         );
         assert!(
             err(&o).contains("warning: the render is zero everywhere"),
@@ -368,17 +347,13 @@ fn renders_of_nothing_are_warned_with_their_cause() {
             ..SceneSpec::default()
         };
         let scene = spec.write(&dir.join("filter"));
-        let o = umbra(
+        let o = cli(
             &dir,
-            &[
-                "render",
+            &format!(
+                "render {} --model {} -o z.npy -q",
                 scene.to_str().unwrap(),
-                "--model",
-                model,
-                "-o",
-                "z.npy",
-                "-q",
-            ],
+                model
+            ),
         );
         refused(
             &o,
@@ -387,29 +362,18 @@ fn renders_of_nothing_are_warned_with_their_cause() {
     }
     // A render that is not zero says nothing of the kind.
     let scene = SceneSpec::default().write(&dir.join("ok"));
-    let o = umbra(
+    let o = cli(
         &dir,
-        &[
-            "render",
-            scene.to_str().unwrap(),
-            "-o",
-            "ok.npy",
-            "-q",
-            "--no-preview",
-        ],
+        &format!(
+            "render {} -o ok.npy -q --no-preview",
+            scene.to_str().unwrap()
+        ),
     );
     assert!(!err(&o).contains("zero everywhere"), "{}", err(&o));
     // The gradient against a target equal to the render says why it is zero.
-    let o = umbra(
+    let o = cli(
         &dir,
-        &[
-            "grad",
-            scene.to_str().unwrap(),
-            "--target",
-            "ok.npy",
-            "-o",
-            "g.npz",
-        ],
+        &format!("grad {} --target ok.npy -o g.npz", scene.to_str().unwrap()),
     );
     warned(
         &o,
@@ -527,18 +491,9 @@ fn outputs_and_counts_mean_what_they_say() {
     warned(&o, &[]);
     assert!(dir.join("new/folder/scene.xml").exists());
     // --time-bin 0 ran as 1.
-    let o = umbra(
+    let o = cli(
         &dir,
-        &[
-            "convert",
-            s,
-            "--measured",
-            "target.npy",
-            "-o",
-            "c.npy",
-            "--time-bin",
-            "0",
-        ],
+        &format!("convert {} --measured target.npy -o c.npy --time-bin 0", s),
     );
     assert_eq!(o.status.code(), Some(2), "{}", err(&o));
     assert!(
@@ -547,38 +502,21 @@ fn outputs_and_counts_mean_what_they_say() {
         err(&o)
     );
     // --iters 20 ran 23 iterations (each stage's share rounded up).
-    let o = umbra(
+    let o = cli(
         &dir,
-        &[
-            "fit",
-            s,
-            "--measured",
-            "target.npy",
-            "-o",
-            "fit",
-            "-q",
-            "--iters",
-            "20",
-        ],
+        &format!("fit {} --measured target.npy -o fit -q --iters 20", s),
     );
     assert!(o.status.success(), "{}", err(&o));
     let csv = std::fs::read_to_string(dir.join("fit/loss.csv")).unwrap();
     let rows = csv.lines().skip(1).filter(|l| !l.trim().is_empty()).count();
     assert_eq!(rows, 20, "{csv}");
     // --ignore-before past the film: an OPL of 2.9e17 m, the flag unnamed.
-    let o = umbra(
+    let o = cli(
         &dir,
-        &[
-            "fit",
-            s,
-            "--measured",
-            "target.npy",
-            "-o",
-            "fit2",
-            "-q",
-            "--ignore-before",
-            "1e30",
-        ],
+        &format!(
+            "fit {} --measured target.npy -o fit2 -q --ignore-before 1e30",
+            s
+        ),
     );
     refused(
         &o,

@@ -3,7 +3,7 @@
 //! light, and a capture that sees the hidden objects. A scene that would render all
 //! zeros is refused; one that loses part of its signal gets a warning naming the share.
 
-use super::{CaptureType, Scene};
+use super::{CaptureType, LaserEmission, Scene};
 use crate::error::{Error, Result};
 use glam::Vec3;
 use std::path::Path;
@@ -31,6 +31,40 @@ pub fn bad_vertex_message(what: &str, (i, p): (usize, Vec3)) -> String {
     } else {
         format!("{what}: vertex {i} is not finite ({p})")
     }
+}
+
+/// The largest power a laser may deliver to its wall spot (W): [`Scene::validate`].
+pub const MAX_SPOT_POWER: f32 = 1e26;
+
+/// The largest power the laser delivers to a spot of this capture (W).
+pub fn max_spot_power(scene: &Scene) -> f32 {
+    let n_w = scene.wall.normal();
+    match scene.capture {
+        CaptureType::Single => scene.laser.power_at(scene.laser.target, n_w),
+        _ => (0..scene.scan.len())
+            .map(|i| scene.laser.power_at(scene.scan.point(i), n_w))
+            .fold(0.0, |a: f32, p| if p.is_nan() { p } else { a.max(p) }),
+    }
+}
+
+/// The spot's power must leave the transient room in `f32`: the rest of the
+/// measurement equation (BRDFs, the geometry factors of surfaces millimetres apart,
+/// a bin's `1/Δ`) can multiply it by up to ~1e12, and `f32` ends at 3.4e38.
+pub(super) fn spot_power(scene: &Scene, err: &dyn Fn(&str, String) -> Result<()>) -> Result<()> {
+    let p = max_spot_power(scene);
+    if p.is_finite() && p <= MAX_SPOT_POWER {
+        return Ok(());
+    }
+    let (field, value) = match scene.laser.emission {
+        LaserEmission::Power(p) => ("laser.power", p),
+        LaserEmission::Irradiance { irradiance, .. } => ("laser.irradiance", irradiance),
+    };
+    err(
+        field,
+        format!(
+            "{value:e} delivers {p:e} W to the wall spot, more than {MAX_SPOT_POWER:e} W: the transient would overflow float32 (max 3.4e38); the output is linear in the laser's power, so scale it afterwards"
+        ),
+    )
 }
 
 /// Refuses what would render nothing or cannot be represented (called by

@@ -343,8 +343,7 @@ pub struct Scene {
     pub warnings: Vec<String>,
 }
 
-/// The largest power a laser may deliver to its wall spot (W): [`Scene::validate`].
-pub const MAX_SPOT_POWER: f32 = 1e26;
+pub use checks::MAX_SPOT_POWER;
 
 impl Scene {
     /// Loads a scene file, choosing the reader by extension (`.toml` or `.xml`).
@@ -452,37 +451,6 @@ impl Scene {
         self.objects.iter().map(|o| o.mesh.triangles.len()).sum()
     }
 
-    /// The largest power the laser delivers to a spot of this capture (W).
-    pub fn max_spot_power(&self) -> f32 {
-        let n_w = self.wall.normal();
-        match self.capture {
-            CaptureType::Single => self.laser.power_at(self.laser.target, n_w),
-            _ => (0..self.scan.len())
-                .map(|i| self.laser.power_at(self.scan.point(i), n_w))
-                .fold(0.0, |a: f32, p| if p.is_nan() { p } else { a.max(p) }),
-        }
-    }
-
-    /// The spot's power must leave the transient room in `f32`: the rest of the
-    /// measurement equation (BRDFs, the geometry factors of surfaces millimetres apart,
-    /// a bin's `1/Δ`) can multiply it by up to ~1e12, and `f32` ends at 3.4e38.
-    fn check_spot_power(&self, err: &dyn Fn(&str, String) -> Result<()>) -> Result<()> {
-        let p = self.max_spot_power();
-        if p.is_finite() && p <= MAX_SPOT_POWER {
-            return Ok(());
-        }
-        let (field, value) = match self.laser.emission {
-            LaserEmission::Power(p) => ("laser.power", p),
-            LaserEmission::Irradiance { irradiance, .. } => ("laser.irradiance", irradiance),
-        };
-        err(
-            field,
-            format!(
-                "{value:e} delivers {p:e} W to the wall spot, more than {MAX_SPOT_POWER:e} W: the transient would overflow float32 (max 3.4e38); the output is linear in the laser's power, so scale it afterwards"
-            ),
-        )
-    }
-
     /// Checks every invariant the renderers rely on; `origin` names the file in messages.
     pub fn validate(&self, origin: &Path) -> Result<()> {
         let err = |field: &str, msg: String| Err(Error::field(origin, field, msg));
@@ -564,7 +532,7 @@ impl Scene {
             }
             _ => {}
         }
-        self.check_spot_power(&err)?;
+        checks::spot_power(self, &err)?;
         if !(self.laser.spot_radius.is_finite() && self.laser.spot_radius >= 0.0) {
             return err("laser.spot_radius", "must be finite and >= 0".into());
         }

@@ -27,6 +27,7 @@ mod iters;
 pub mod metrics;
 pub mod objective;
 pub mod point_background;
+pub mod poisson;
 mod prepare;
 pub mod reconstruction;
 pub mod request;

@@ -340,6 +340,29 @@ fn renders_of_nothing_are_warned_with_their_cause() {
         );
         warned(&o, &[says]);
     }
+    // The devices behind a plate that covers the wall: the lines to the wall are blocked.
+    let walled = SceneSpec {
+        laser_origin: [0.0, 0.0, 1.0],
+        detector_origin: [0.0, 0.0, 1.0],
+        objects: vec![(square_obj([0.0, 0.0, 0.6], 3.0), 0.8, "lambertian")],
+        ..SceneSpec::default()
+    };
+    let scene = walled.write(&dir.join("walled"));
+    let o = umbra(
+        &dir,
+        &["render", scene.to_str().unwrap(), "-o", "z.npy", "-q"],
+    );
+    warned(
+        &o,
+        &["block the laser's or the detector's line to the wall at every scan point"],
+    );
+    // gradcheck says so at once (it ran every finite difference, minutes on a large
+    // scan, before saying they were all zero).
+    let o = umbra(
+        &dir,
+        &["gradcheck", scene.to_str().unwrap(), "--params", "2"],
+    );
+    refused(&o, &["gradcheck: the render is zero everywhere, so there is no gradient to check: the hidden objects block"]);
     // mc3 and tri3 rendered three-bounce light whatever filter_bounces asked for.
     for model in ["mc3", "tri3"] {
         let spec = SceneSpec {

@@ -40,6 +40,9 @@ pub fn zero_reason(scene: &Scene) -> String {
     {
         return "every hidden object is one-sided (two_sided = false) and faces away from the relay wall: flip its faces or set two_sided = true".to_string();
     }
+    if let Some(r) = legs_blocked(scene) {
+        return r;
+    }
     let t = &scene.render.techniques;
     if scene.laser.spot_radius > 0.0 && !t.laser_sampling {
         return format!(
@@ -50,10 +53,31 @@ pub fn zero_reason(scene: &Scene) -> String {
     "no light path reached a sensor point: the hidden objects may be occluded from the wall, a Monte Carlo render may have too few samples (spp), or the signal is below float32's range".to_string()
 }
 
+/// Most measurements whose visible legs are traced for the cause.
+const MAX_LEG_CHECKS: usize = 1 << 16;
+
+/// Whether the laser's or the detector's line to the wall is blocked for every
+/// measurement (`render.visible_legs`: the devices stand in the hidden volume).
+fn legs_blocked(scene: &Scene) -> Option<String> {
+    let n = scene.num_measurements();
+    if !scene.render.visible_legs || n == 0 || n > MAX_LEG_CHECKS {
+        return None;
+    }
+    let geom = crate::geometry::SceneGeometry::build(scene);
+    let blocked = (0..n).all(|m| {
+        let (x_l, x_s) = scene.measurement_points(m);
+        geom.occluded(scene.laser.origin, x_l) || geom.occluded(x_s, scene.detector.origin)
+    });
+    blocked.then(|| format!(
+        "the hidden objects block the laser's or the detector's line to the wall at every scan point (laser.origin {}, detector.origin {}): move the devices out of the hidden volume, or set render.visible_legs = false for a capture rectified to the wall",
+        scene.laser.origin, scene.detector.origin
+    ))
+}
+
 /// The film window against the geometry's three-bounce OPL range, if it misses it.
 fn film_miss(scene: &Scene) -> Option<String> {
-    let (lo, hi) = bounding_box(scene)?;
-    let (opl_min, opl_max) = three_bounce_range(scene, lo, hi);
+    let boxes = boxes(scene)?;
+    let (opl_min, opl_max) = three_bounce_range(scene, &boxes);
     let start = f64::from(scene.film.start_opl);
     let end = start + f64::from(scene.film.temporal_bins) * f64::from(scene.film.bin_width_opl);
     if end < opl_min {
@@ -70,23 +94,40 @@ fn film_miss(scene: &Scene) -> Option<String> {
     }
 }
 
-fn bounding_box(scene: &Scene) -> Option<(Vec3, Vec3)> {
-    let mut lo = Vec3::splat(f32::INFINITY);
-    let mut hi = -lo;
+/// Most point-box pairs worked through: beyond, one box for the whole geometry.
+const MAX_PAIRS: usize = 20_000_000;
+
+/// Boxes around the hidden geometry: one per triangle (a tight bound) while the scan
+/// times the triangles stays under [`MAX_PAIRS`], else one around everything.
+fn boxes(scene: &Scene) -> Option<Vec<(Vec3, Vec3)>> {
+    let tris = scene.total_hidden_triangles();
+    let per_triangle = tris.saturating_mul(scene.scan.len()) <= MAX_PAIRS;
+    let mut all = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    let mut out = Vec::new();
     for o in &scene.objects {
-        for p in &o.mesh.positions {
-            lo = lo.min(*p);
-            hi = hi.max(*p);
+        for t in 0..o.mesh.triangles.len() {
+            let [a, b, c] = o.mesh.triangle(t);
+            let (lo, hi) = (a.min(b).min(c), a.max(b).max(c));
+            all = (all.0.min(lo), all.1.max(hi));
+            if per_triangle {
+                out.push((lo, hi));
+            }
         }
     }
-    (lo.cmple(hi).all()).then_some((lo, hi))
+    if !per_triangle {
+        out.push(all);
+    }
+    (tris > 0).then_some(out)
 }
 
-/// `(min, max)` three-bounce OPL over the measurements, through the box `[lo, hi]`.
-fn three_bounce_range(scene: &Scene, lo: Vec3, hi: Vec3) -> (f64, f64) {
+/// `(min, max)` three-bounce OPL over the measurements, through the geometry's `boxes`:
+/// a path through a point of box `B` is at least `dist(x_l, B) + dist(B, x_s)` long and
+/// at most the two farthest distances.
+fn three_bounce_range(scene: &Scene, boxes: &[(Vec3, Vec3)]) -> (f64, f64) {
     use crate::scene::CaptureType;
-    let near = |p: Vec3| f64::from((p.clamp(lo, hi) - p).length());
-    let far = |p: Vec3| f64::from((p - lo).abs().max((p - hi).abs()).length());
+    let near = |p: Vec3, (lo, hi): (Vec3, Vec3)| f64::from((p.clamp(lo, hi) - p).length());
+    let far =
+        |p: Vec3, (lo, hi): (Vec3, Vec3)| f64::from((p - lo).abs().max((p - hi).abs()).length());
     let afl = scene.account_first_and_last_bounces;
     let laser_leg = |x_l: Vec3| afl.then(|| (x_l - scene.laser.origin).length());
     let sensor_leg = |x_s: Vec3| afl.then(|| (x_s - scene.detector.origin).length());
@@ -101,19 +142,29 @@ fn three_bounce_range(scene: &Scene, lo: Vec3, hi: Vec3) -> (f64, f64) {
                     _ => x_s,
                 };
                 let legs = leg(laser_leg(x_l)) + leg(sensor_leg(x_s));
-                opl_min = opl_min.min(near(x_l) + near(x_s) + legs);
-                opl_max = opl_max.max(far(x_l) + far(x_s) + legs);
+                for &b in boxes {
+                    opl_min = opl_min.min(near(x_l, b) + near(x_s, b) + legs);
+                    opl_max = opl_max.max(far(x_l, b) + far(x_s, b) + legs);
+                }
             }
         }
         // Every laser point with every sensor point: the extremes of each end apart.
         CaptureType::Exhaustive => {
-            let min = |f: &dyn Fn(Vec3) -> f64| {
-                points.iter().map(|&p| f(p)).fold(f64::INFINITY, f64::min)
-            };
-            let max = |f: &dyn Fn(Vec3) -> f64| points.iter().map(|&p| f(p)).fold(0.0, f64::max);
-            opl_min =
-                min(&|p| near(p) + leg(laser_leg(p))) + min(&|p| near(p) + leg(sensor_leg(p)));
-            opl_max = max(&|p| far(p) + leg(laser_leg(p))) + max(&|p| far(p) + leg(sensor_leg(p)));
+            let ends =
+                |f: &dyn Fn(Vec3, (Vec3, Vec3)) -> f64, l: &dyn Fn(Vec3) -> f64, lo: bool| {
+                    let all = points
+                        .iter()
+                        .flat_map(|&p| boxes.iter().map(move |&b| (p, b)));
+                    let vals = all.map(|(p, b)| f(p, b) + l(p));
+                    if lo {
+                        vals.fold(f64::INFINITY, f64::min)
+                    } else {
+                        vals.fold(0.0, f64::max)
+                    }
+                };
+            let (ll, sl) = (|p| leg(laser_leg(p)), |p| leg(sensor_leg(p)));
+            opl_min = ends(&near, &ll, true) + ends(&near, &sl, true);
+            opl_max = ends(&far, &ll, false) + ends(&far, &sl, false);
         }
     }
     (opl_min, opl_max)

@@ -234,6 +234,18 @@ pub fn gradcheck(args: GradcheckArgs) -> umbra::Result<()> {
     }
     let pool = umbra::threads::pool(args.threads, "--threads")?;
     exit_on_ctrl_c("gradcheck", None);
+    // A render of nothing has nothing to check: said at once, with the cause, instead of
+    // after every finite difference has come out zero.
+    let base = pool.install(|| {
+        let geom = umbra::geometry::SceneGeometry::build(&scene);
+        umbra::transport::render(&scene, &geom, &opts, None)
+    })?;
+    if silence::all_zero(&base.data) {
+        return Err(umbra::Error::Invalid(format!(
+            "gradcheck: the render is zero everywhere, so there is no gradient to check: {}",
+            silence::zero_reason(&scene)
+        )));
+    }
     let params = check::pick_params(&scene, args.params, opts.seed);
     let rows = pool.install(|| check::run(&scene, &opts, &params, &args.h))?;
     let largest = rows

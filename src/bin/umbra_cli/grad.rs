@@ -234,6 +234,8 @@ pub fn gradcheck(args: GradcheckArgs) -> umbra::Result<()> {
     }
     let pool = umbra::threads::pool(args.threads, "--threads")?;
     exit_on_ctrl_c("gradcheck", None);
+    // The gate's gradient refusals come first, as for `grad`.
+    umbra::transport::gate::check(&scene, &opts, umbra::transport::gate::Pass::Gradient)?;
     // A render of nothing has nothing to check: said at once, with the cause, instead of
     // after every finite difference has come out zero.
     let base = pool.install(|| {

@@ -69,6 +69,13 @@ fn readable<'py>(slf: &Bound<'py, PyScene>) -> PyResult<PyRef<'py, PyScene>> {
     slf.try_borrow().map_err(|_| in_use())
 }
 
+/// Object `object`'s index and vertex count, read before a setter checks its array.
+fn object_and_vertices(slf: &Bound<'_, PyScene>, object: &ObjectIndex) -> PyResult<(usize, usize)> {
+    let s = readable(slf)?;
+    let (k, o) = s.object(object)?;
+    Ok((k, o.mesh.positions.len()))
+}
+
 /// The scene to change; [`in_use`] while something reads it (instead of PyO3's bare
 /// `RuntimeError: Already borrowed`).
 fn mutable<'py>(slf: &Bound<'py, PyScene>) -> PyResult<PyRefMut<'py, PyScene>> {
@@ -193,11 +200,7 @@ impl PyScene {
         vertices: &Bound<'_, PyAny>,
         object: ObjectIndex,
     ) -> PyResult<()> {
-        let (k, n) = {
-            let s = readable(slf)?;
-            let (k, o) = s.object(&object)?;
-            (k, o.mesh.positions.len())
-        };
+        let (k, n) = object_and_vertices(slf, &object)?;
         let vertices = checked_vertices(vertices, &format!("vertices of object {k}"), n)?;
         let mut s = mutable(slf)?;
         let rows = vertices.rows();
@@ -271,11 +274,7 @@ impl PyScene {
         values: &Bound<'_, PyAny>,
         object: ObjectIndex,
     ) -> PyResult<()> {
-        let (k, n) = {
-            let s = readable(slf)?;
-            let (k, o) = s.object(&object)?;
-            (k, o.mesh.positions.len())
-        };
+        let (k, n) = object_and_vertices(slf, &object)?;
         let values = match values.is_none() {
             true => None,
             false => Some(checked_vertex_albedo(

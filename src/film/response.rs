@@ -24,6 +24,7 @@
 //! function of `t0` (use the box-bin renders' own jitter), and tails longer than the film
 //! are cut by it.
 
+use super::jitter::JitterKernel;
 use crate::adjoint::dual::{Dual, Real};
 
 /// Most exponential tails the model carries.
@@ -132,28 +133,15 @@ impl ResponseKernel {
         }
     }
 
-    /// The rows of `data` (each `bins` long) blurred by the response:
-    /// `H'[t] = Σ_j taps[j] H[t − lag_j]`, light arriving before bin 0 or after the last
-    /// bin lost, as a detector loses it.
-    pub fn apply(&self, data: &[f32], bins: usize) -> Vec<f32> {
-        let mut out = vec![0.0f32; data.len()];
-        for (row, o) in data.chunks_exact(bins).zip(out.chunks_exact_mut(bins)) {
-            let mut acc = vec![0.0f64; bins];
-            self.for_each(bins, |t, s, j| acc[t] += self.taps[j] * f64::from(row[s]));
-            o.iter_mut().zip(&acc).for_each(|(o, a)| *o = *a as f32);
+    /// The blur as the fit's convolution ([`JitterKernel`]: `H'[t] = Σ_j taps[j] H[t −
+    /// lag_j]` row by row, light beyond a row's ends lost as a detector loses it, and its
+    /// transpose for the adjoint to the render).
+    pub fn blur(&self) -> JitterKernel {
+        JitterKernel {
+            first: self.first,
+            taps: self.taps.clone(),
+            d_taps: vec![0.0; self.taps.len()],
         }
-        out
-    }
-
-    /// The transpose of [`ResponseKernel::apply`]: `dL/dH[s] = Σ_j taps[j] dL/dH'[s + lag_j]`.
-    pub fn apply_transpose(&self, adjoint: &[f32], bins: usize) -> Vec<f32> {
-        let mut out = vec![0.0f32; adjoint.len()];
-        for (row, o) in adjoint.chunks_exact(bins).zip(out.chunks_exact_mut(bins)) {
-            let mut acc = vec![0.0f64; bins];
-            self.for_each(bins, |t, s, j| acc[s] += self.taps[j] * f64::from(row[t]));
-            o.iter_mut().zip(&acc).for_each(|(o, a)| *o = *a as f32);
-        }
-        out
     }
 
     /// `dL/dθ` for every response parameter, given the unblurred `render` and the adjoint
@@ -297,11 +285,11 @@ mod tests {
                 .map(|(x, y)| f64::from(*x) * f64::from(*y))
                 .sum::<f64>()
         };
-        // <A h, y> = <h, Aᵀ y>.
-        let (lhs, rhs) = (
-            dot(&k.apply(&h, bins), &adj),
-            dot(&h, &k.apply_transpose(&adj, bins)),
-        );
+        // The blur and its transpose: <A h, y> = <h, Aᵀ y>.
+        let (mut ah, mut aty) = (h.clone(), adj.clone());
+        k.blur().apply(&mut ah, bins);
+        k.blur().apply_transpose(&mut aty, bins);
+        let (lhs, rhs) = (dot(&ah, &adj), dot(&h, &aty));
         assert!(
             (lhs - rhs).abs() < 1e-5 * lhs.abs().max(1.0),
             "{lhs} against {rhs}"

@@ -44,6 +44,17 @@ pub struct BackgroundFit {
     pub loss: f64,
 }
 
+impl BackgroundFit {
+    /// `β = (s, c, k)` in the design's column order.
+    fn coefficients(&self) -> [f64; MAX_COLS] {
+        let mut beta = [0.0; MAX_COLS];
+        beta[0] = self.scale;
+        beta[1..1 + self.floor.len()].copy_from_slice(&self.floor);
+        beta[1 + self.floor.len()] = self.tail_gain;
+        beta
+    }
+}
+
 /// Most columns: the render, six floor terms, the tail.
 const MAX_COLS: usize = 8;
 
@@ -105,10 +116,14 @@ impl PointBackground {
 
     /// `B[p, t]` for the fitted parameters.
     pub fn background(&self, fit: &BackgroundFit, p: usize, t: usize) -> f64 {
+        self.model(&fit.coefficients(), p, t, 0.0)
+    }
+
+    /// `s h + B[p, t]` for the coefficients `β` ([`BackgroundFit::coefficients`]).
+    fn model(&self, beta: &[f64; MAX_COLS], p: usize, t: usize, h: f64) -> f64 {
         let mut x = [0.0f64; MAX_COLS];
-        let n = self.row(p, t, 0.0, &mut x);
-        let beta: Vec<f64> = [&[0.0][..], &fit.floor, &[fit.tail_gain]].concat();
-        (1..n).map(|i| x[i] * beta[i]).sum()
+        let n = self.row(p, t, h, &mut x);
+        x[..n].iter().zip(beta).map(|(x, b)| x * b).sum()
     }
 
     /// `dL/dH` at the fit (the envelope theorem's gradient; 0 before `first`).
@@ -125,6 +140,7 @@ impl PointBackground {
             .flat_map(|m| m[first..].iter().map(|&v| f64::from(v) * f64::from(v)))
             .sum();
         let mut out = vec![0.0f32; render.len()];
+        let beta = fit.coefficients();
         if mm <= 0.0 {
             return out;
         }
@@ -135,7 +151,7 @@ impl PointBackground {
             .enumerate()
         {
             for t in first..bins {
-                let model = fit.scale * f64::from(h[t]) + self.background(fit, p, t);
+                let model = self.model(&beta, p, t, f64::from(h[t]));
                 o[t] = (2.0 * fit.scale * (model - f64::from(m[t])) / mm) as f32;
             }
         }

@@ -261,7 +261,15 @@ impl Stage {
 
 /// Builds each stage's objective (the renderer set up at the stage's resolution).
 pub trait ObjectiveFactory {
-    fn objective(&mut self, stage: &Stage, index: usize) -> Result<Box<dyn MeshObjective>, String>;
+    /// The objective of stage `index`, which starts from `start` (the mesh the stage's
+    /// checkpoint holds, so a resumed stage is built from the same mesh: an objective may
+    /// calibrate itself on it, e.g. a detector response, and stay deterministic).
+    fn objective(
+        &mut self,
+        stage: &Stage,
+        index: usize,
+        start: &Mesh,
+    ) -> Result<Box<dyn MeshObjective>, String>;
 }
 
 /// Remeshes between stages: `(mesh, target edge) -> mesh`.
@@ -516,7 +524,9 @@ pub fn fit(
                 return Err(FitError::Checkpoint(mismatch_error(&solver_path, &d)));
             }
         }
-        let objective = factory.objective(stage, index).map_err(stage_err)?;
+        let objective = factory
+            .objective(stage, index, &current.mesh)
+            .map_err(stage_err)?;
         let settings = ProblemSettings {
             large_steps: stage.large_steps,
             laplacian: stage.laplacian,

@@ -47,7 +47,12 @@ impl MeshObjective for Toy {
 struct Factory;
 
 impl ObjectiveFactory for Factory {
-    fn objective(&mut self, _: &Stage, _: usize) -> Result<Box<dyn MeshObjective>, String> {
+    fn objective(
+        &mut self,
+        _: &Stage,
+        _: usize,
+        _: &Mesh,
+    ) -> Result<Box<dyn MeshObjective>, String> {
         Ok(Box::new(Toy))
     }
 }

@@ -68,7 +68,12 @@ struct Factory {
 }
 
 impl ObjectiveFactory for Factory {
-    fn objective(&mut self, _: &Stage, _: usize) -> Result<Box<dyn MeshObjective>, String> {
+    fn objective(
+        &mut self,
+        _: &Stage,
+        _: usize,
+        _: &Mesh,
+    ) -> Result<Box<dyn MeshObjective>, String> {
         let target = grid(6, 0.0)
             .vertices
             .iter()

@@ -199,6 +199,7 @@ impl ObjectiveFactory for Factory<'_> {
         &mut self,
         stage: &Stage,
         _index: usize,
+        _start: &Mesh,
     ) -> std::result::Result<Box<dyn MeshObjective>, String> {
         self.build(stage)
             .map(|o| Box::new(o) as Box<dyn MeshObjective>)

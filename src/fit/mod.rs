@@ -20,6 +20,7 @@
 //! - [`run`]: the whole fit with its outputs (mesh, loss curve, transients side by side,
 //!   checkpoints).
 
+pub mod capture;
 pub mod determined;
 pub mod init;
 pub mod intensity;

@@ -1,0 +1,526 @@
+//! A real capture's observation model, calibrated from the capture itself (issue 48):
+//! the render `H` through a parametric detector response `R_θ` ([`crate::film::response`]:
+//! a Gaussian core and exponential tails), then a gain field, a floor and the direct
+//! return's tails ([`super::point_background`]), compared with the counts `M` under the
+//! Poisson likelihood (or L2) on the fitted bins `U` of the scan points in the fit:
+//!
+//! `μ[p, t] = g(p) (R_θ ⊗ H)[p, t] + f(p) + Σ_k κ_k D_p τ_k[t]`,
+//! `L(mesh) = min_θ min_β loss(μ, M)`.
+//!
+//! The linear nuisances `β = (g, f, κ)` are fitted in closed form in every evaluation
+//! ([`super::linear_fit`]). The response `θ = (σ, t0, (w_i, τ_i))` is calibrated at the
+//! start of each stage on the stage's start mesh, by projected gradient descent on `L`
+//! (`∂L/∂θ` from the exact tap derivatives, [`ResponseKernel::param_gradient`]), for each
+//! number of tails from 0 to [`MAX_CALIBRATED_TAILS`]; the number kept is the one of the
+//! lowest loss on the scan points left out of the fit (held-out points: the nuisances and
+//! the response are fitted on the others and predict them), not the in-sample loss, which
+//! more tails always lower. Then the stage's evaluations hold `θ` fixed, so the envelope
+//! theorem gives the mesh's gradient as `R_θᵀ ∂L/∂(R ⊗ H)`.
+//!
+//! Where it fails: the stage's bins must resolve the core (calibration runs only where a
+//! bin is at most [`RESOLVED_BINS_PER_SIGMA`] of the prior's `σ`; coarser stages keep the
+//! prior); the captures' direct return is cropped at bin 0, so the core's `σ` is set by
+//! the hidden surface's leading edges, and a wrong surface there biases it.
+
+use super::linear_fit::{self, Likelihood, LinearFit, Window};
+use super::point_background::PointBackground;
+use crate::film::response::{Response, ResponseKernel, PARAMS};
+
+/// Tails the calibration tries (0 to this many).
+pub const MAX_CALIBRATED_TAILS: usize = 2;
+/// Calibration runs where a bin is at most this many `σ` of the prior.
+pub const RESOLVED_BINS_PER_SIGMA: f64 = 2.5;
+/// Projected-gradient iterations of one calibration.
+const CALIBRATION_ITERS: usize = 20;
+
+/// The detector response of the Stanford LCT system measured on its captures
+/// (`notes/capture-calibration.md` §2, the resolution and dot charts): σ = 28 ps, tails
+/// of 74 ps (38 %) and 262 ps (34 %); in OPL (m). The calibration's start.
+pub fn stanford_prior() -> Response {
+    Response {
+        sigma: 0.0084,
+        t0: 0.0,
+        tails: vec![(0.38, 0.0222), (0.34, 0.0786)],
+    }
+}
+
+/// A capture's model at one stage's resolution.
+#[derive(Clone, Debug)]
+pub struct CaptureModel {
+    pub design: PointBackground,
+    pub likelihood: Likelihood,
+    pub response: Response,
+    /// Per scan point, whether it is in the fit (the rest are held out).
+    pub in_fit: Vec<bool>,
+    pub bins: usize,
+    /// Bins before this one are not fitted.
+    pub first: usize,
+    /// Bin width (OPL, m).
+    pub bin_width: f64,
+}
+
+/// One comparison of a render with the measurement.
+#[derive(Clone, Debug)]
+pub struct CaptureComparison {
+    /// The loss on the points in the fit (relative L2, or deviance per bin).
+    pub loss: f64,
+    /// `∂L/∂H` with respect to the render before the response.
+    pub adjoint: Vec<f32>,
+    /// `R_θ ⊗ H` with the unfitted bins zeroed.
+    pub blurred: Vec<f32>,
+    /// `μ`, at every scan point (held-out ones too), zero in the unfitted bins.
+    pub model: Vec<f32>,
+    pub fit: LinearFit,
+    /// The loss at the held-out points (NaN when none are held out).
+    pub held_out: f64,
+}
+
+impl CaptureModel {
+    fn window<'a>(&self, in_fit: &'a [bool]) -> Window<'a> {
+        Window {
+            bins: self.bins,
+            first: self.first,
+            in_fit,
+        }
+    }
+
+    /// `R_θ ⊗ H` (unfitted bins zeroed) and the kernel.
+    pub fn blur(&self, raw: &[f32]) -> (Vec<f32>, ResponseKernel) {
+        let kernel = self.response.kernel(self.bin_width);
+        let mut out = raw.to_vec();
+        kernel.blur().apply(&mut out, self.bins);
+        super::objective::zero_leading_bins(&mut out, self.bins, self.first);
+        (out, kernel)
+    }
+
+    /// Compares `raw` with `measured` (module doc); `adjoint` through the response.
+    pub fn compare(&self, raw: &[f32], measured: &[f32]) -> CaptureComparison {
+        let (blurred, kernel) = self.blur(raw);
+        let mut c = self.compare_blurred(blurred, measured);
+        kernel.blur().apply_transpose(&mut c.adjoint, self.bins);
+        c
+    }
+
+    /// [`CaptureModel::compare`] of a render already through the response; the adjoint
+    /// is with respect to `blurred`.
+    fn compare_blurred(&self, blurred: Vec<f32>, measured: &[f32]) -> CaptureComparison {
+        let win = self.window(&self.in_fit);
+        let fit = linear_fit::fit(&self.design, &blurred, measured, &win, self.likelihood);
+        let adjoint = linear_fit::adjoint(
+            &self.design,
+            &fit,
+            &blurred,
+            measured,
+            &win,
+            self.likelihood,
+        );
+        let held: Vec<bool> = self.in_fit.iter().map(|&b| !b).collect();
+        let held_out = if held.iter().any(|&b| b) {
+            held_out_loss(
+                &self.design,
+                &fit,
+                &blurred,
+                measured,
+                &self.window(&held),
+                self.likelihood,
+            )
+        } else {
+            f64::NAN
+        };
+        let model = blurred
+            .chunks_exact(self.bins)
+            .enumerate()
+            .flat_map(|(p, h)| {
+                let (design, beta) = (&self.design, &fit.beta);
+                (0..self.bins).map(move |t| {
+                    if t < self.first {
+                        0.0
+                    } else {
+                        linear_fit::model(design, beta, p, t, f64::from(h[t])) as f32
+                    }
+                })
+            })
+            .collect();
+        CaptureComparison {
+            loss: fit.loss,
+            adjoint,
+            blurred,
+            model,
+            fit,
+            held_out,
+        }
+    }
+
+    /// The loss and its gradient with respect to the response's parameters, for `raw`.
+    fn response_gradient(
+        &self,
+        raw: &[f32],
+        measured: &[f32],
+    ) -> (CaptureComparison, [f64; PARAMS]) {
+        let (blurred, kernel) = self.blur(raw);
+        let c = self.compare_blurred(blurred, measured);
+        let g = kernel.param_gradient(raw, &c.adjoint, self.bins);
+        (c, g)
+    }
+
+    /// Calibrates the response on `raw` (the stage's start mesh rendered): for each number
+    /// of tails up to [`MAX_CALIBRATED_TAILS`], projected gradient descent from the
+    /// prior's parameters; keeps the one of the lowest held-out loss (the lowest
+    /// in-sample loss when no point is held out). Returns each candidate's
+    /// `(tails, in-sample loss, held-out loss)`.
+    pub fn calibrate(
+        &mut self,
+        raw: &[f32],
+        measured: &[f32],
+        prior: &Response,
+    ) -> Vec<(usize, f64, f64)> {
+        let mut tried = Vec::new();
+        let mut best: Option<(f64, Response)> = None;
+        for tails in 0..=MAX_CALIBRATED_TAILS.min(prior.tails.len()) {
+            let start = Response {
+                tails: prior.tails[..tails].to_vec(),
+                ..prior.clone()
+            };
+            let (response, c) = self.descend(raw, measured, start);
+            let score = if c.held_out.is_nan() {
+                c.loss
+            } else {
+                c.held_out
+            };
+            tried.push((tails, c.loss, c.held_out));
+            if best.as_ref().is_none_or(|(s, _)| score < *s) {
+                best = Some((score, response));
+            }
+        }
+        if let Some((_, r)) = best {
+            self.response = r;
+        }
+        tried
+    }
+
+    /// Projected gradient descent on the response from `start` (Barzilai–Borwein steps
+    /// with backtracking, in the coordinates of [`Coords`]).
+    fn descend(
+        &mut self,
+        raw: &[f32],
+        measured: &[f32],
+        start: Response,
+    ) -> (Response, CaptureComparison) {
+        let tails = start.tails.len();
+        self.response = start;
+        let (mut c, g) = self.response_gradient(raw, measured);
+        let mut q = Coords::of(&self.response);
+        let mut grad = Coords::chain(&self.response, &g);
+        let mut step = 1e-2 / grad.iter().map(|v| v * v).sum::<f64>().sqrt().max(1e-300);
+        let mut prev: Option<(Vec<f64>, Vec<f64>)> = None;
+        for _ in 0..CALIBRATION_ITERS {
+            if let Some((pq, pg)) = &prev {
+                let s: Vec<f64> = q.iter().zip(pq).map(|(a, b)| a - b).collect();
+                let y: Vec<f64> = grad.iter().zip(pg).map(|(a, b)| a - b).collect();
+                let sy: f64 = s.iter().zip(&y).map(|(a, b)| a * b).sum();
+                let ss: f64 = s.iter().map(|a| a * a).sum();
+                if sy > 0.0 {
+                    step = (ss / sy).min(1e3 * step);
+                }
+            }
+            let mut accepted = false;
+            for _ in 0..12 {
+                let trial: Vec<f64> = q.iter().zip(&grad).map(|(q, g)| q - step * g).collect();
+                let response = Coords::response(&trial, tails);
+                let saved = std::mem::replace(&mut self.response, response);
+                let (tc, tg) = self.response_gradient(raw, measured);
+                if tc.loss.is_finite() && tc.loss < c.loss {
+                    prev = Some((q, grad));
+                    q = Coords::of(&self.response);
+                    grad = Coords::chain(&self.response, &tg);
+                    c = tc;
+                    accepted = true;
+                    break;
+                }
+                self.response = saved;
+                step *= 0.25;
+            }
+            if !accepted {
+                break;
+            }
+        }
+        (self.response.clone(), c)
+    }
+}
+
+/// The loss of `fit` at the points of `win` (the held-out ones), without refitting.
+fn held_out_loss(
+    design: &PointBackground,
+    fit: &LinearFit,
+    blurred: &[f32],
+    measured: &[f32],
+    win: &Window,
+    likelihood: Likelihood,
+) -> f64 {
+    let (mut sum, mut norm, mut n) = (0.0, 0.0, 0usize);
+    for (p, (h, m)) in blurred
+        .chunks_exact(win.bins)
+        .zip(measured.chunks_exact(win.bins))
+        .enumerate()
+    {
+        if !win.in_fit.get(p).copied().unwrap_or(true) {
+            continue;
+        }
+        for t in win.first..win.bins {
+            let mu = linear_fit::model(design, &fit.beta, p, t, f64::from(h[t]));
+            let m = f64::from(m[t]);
+            n += 1;
+            match likelihood {
+                Likelihood::L2 => {
+                    sum += (mu - m) * (mu - m);
+                    norm += m * m;
+                }
+                Likelihood::Poisson { counts_per_value } => {
+                    if mu <= 0.0 {
+                        return f64::INFINITY;
+                    }
+                    let log = if m > 0.0 { m * (m / mu).ln() } else { 0.0 };
+                    sum += 2.0 * counts_per_value * (mu - m + log);
+                }
+            }
+        }
+    }
+    match likelihood {
+        Likelihood::L2 if norm > 0.0 => sum / norm,
+        Likelihood::L2 => 0.0,
+        Likelihood::Poisson { .. } => sum / n.max(1) as f64,
+    }
+}
+
+/// The calibration's coordinates: `ln σ`, `t0 / 1 cm`, then per tail `w_i` and `ln τ_i`,
+/// in a box (σ 3–200 ps, |t0| ≤ 100 ps, w_i ≤ 0.95 summing to at most 0.95, τ_i 10 ps – 1
+/// ns) that [`Coords::response`] projects onto.
+struct Coords;
+
+const T0_UNIT: f64 = 0.01;
+
+impl Coords {
+    fn of(r: &Response) -> Vec<f64> {
+        let mut q = vec![r.sigma.ln(), r.t0 / T0_UNIT];
+        for &(w, tau) in &r.tails {
+            q.push(w);
+            q.push(tau.ln());
+        }
+        q
+    }
+
+    fn response(q: &[f64], tails: usize) -> Response {
+        let ps = 3e-4; // 1 ps of OPL (m)
+        let sigma = q[0].exp().clamp(3.0 * ps, 200.0 * ps);
+        let t0 = (q[1] * T0_UNIT).clamp(-100.0 * ps, 100.0 * ps);
+        let mut tails: Vec<(f64, f64)> = (0..tails)
+            .map(|i| {
+                (
+                    q[2 + 2 * i].clamp(0.0, 0.95),
+                    q[3 + 2 * i].exp().clamp(10.0 * ps, 1000.0 * ps),
+                )
+            })
+            .collect();
+        let total: f64 = tails.iter().map(|t| t.0).sum();
+        if total > 0.95 {
+            tails.iter_mut().for_each(|t| t.0 *= 0.95 / total);
+        }
+        Response { sigma, t0, tails }
+    }
+
+    /// `∂L/∂q` from `∂L/∂θ` ([`PARAMS`] order).
+    fn chain(r: &Response, g: &[f64; PARAMS]) -> Vec<f64> {
+        let mut out = vec![g[0] * r.sigma, g[1] * T0_UNIT];
+        for (i, &(_, tau)) in r.tails.iter().enumerate() {
+            out.push(g[2 + 2 * i]);
+            out.push(g[3 + 2 * i] * tau);
+        }
+        out
+    }
+}
+
+/// Per scan point, whether it is in the fit: every point but one in `every` (a fixed
+/// pattern over the full-resolution grid: point `(ix, iy)` of an `nx`-wide grid is held
+/// out when `(ix + 3 iy) % every == every / 2`, so held-out points are spread evenly and
+/// no two are neighbours along a row). `every = 0`: all are in.
+pub fn held_out_pattern(nx: usize, ny: usize, every: usize) -> Vec<bool> {
+    (0..nx * ny)
+        .map(|p| every == 0 || (p % nx + 3 * (p / nx)) % every != every / 2)
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::point_background::exponential_tail;
+    use super::*;
+
+    const BINS: usize = 160;
+    const FIRST: usize = 20;
+    const WIDTH: f64 = 0.0024; // 8 ps of OPL
+    const N: usize = 12; // scan points per side
+
+    fn truth() -> Response {
+        Response {
+            sigma: 0.0084,
+            t0: 0.0012,
+            tails: vec![(0.4, 0.03)],
+        }
+    }
+
+    /// Sharp returns at point-dependent times, as a flat board's render.
+    fn raw() -> Vec<f32> {
+        (0..N * N * BINS)
+            .map(|i| {
+                let (p, t) = (i / BINS, i % BINS);
+                let t0 = 50.0 + ((p % N) as f64 - 5.5).powi(2) * 0.4 + (p / N) as f64;
+                if (t as f64 - t0).abs() < 0.5 {
+                    40.0
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    }
+
+    fn model(response: Response, likelihood: Likelihood, every: usize) -> CaptureModel {
+        let coords = (0..N * N)
+            .map(|p| {
+                let f = |i: usize| 2.0 * i as f64 / (N - 1) as f64 - 1.0;
+                (f(p % N), f(p / N))
+            })
+            .collect();
+        let direct = (0..N * N)
+            .map(|p| 1e4 * (1.0 + 0.5 * ((p % N) as f64 / N as f64)))
+            .collect();
+        let tails = vec![exponential_tail(0.1, 0.0, WIDTH, BINS)];
+        CaptureModel {
+            design: PointBackground::new(direct, tails, coords, 1, 1),
+            likelihood,
+            response,
+            in_fit: held_out_pattern(N, N, every),
+            bins: BINS,
+            first: FIRST,
+            bin_width: WIDTH,
+        }
+    }
+
+    /// Poisson counts of the true model (gain 3 + 0.5 x, floor 0.5, tail gain 2e-4).
+    fn counts(m: &CaptureModel, raw: &[f32]) -> Vec<f32> {
+        let (blurred, _) = m.blur(raw);
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut uniform = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        blurred
+            .iter()
+            .enumerate()
+            .map(|(i, &h)| {
+                let (p, t) = (i / BINS, i % BINS);
+                let (x, _) = m.design.coords[p];
+                let mu = (3.0 + 0.5 * x) * f64::from(h)
+                    + 0.5
+                    + 2e-4 * m.design.direct[p] * m.design.tails[0][t];
+                let (limit, mut k, mut q) = ((-mu).exp(), 0u32, 1.0);
+                loop {
+                    q *= uniform();
+                    if q <= limit {
+                        break k as f32;
+                    }
+                    k += 1;
+                }
+            })
+            .collect()
+    }
+
+    const POISSON: Likelihood = Likelihood::Poisson {
+        counts_per_value: 1.0,
+    };
+
+    #[test]
+    fn the_response_gradient_matches_finite_differences() {
+        let raw = raw();
+        let m = model(truth(), POISSON, 0);
+        let measured = counts(&m, &raw);
+        let off = Response {
+            sigma: 0.01,
+            t0: -0.002,
+            tails: vec![(0.3, 0.02)],
+        };
+        let at = |r: &Response| model(r.clone(), POISSON, 0);
+        let (c, g) = at(&off).response_gradient(&raw, &measured);
+        assert!(c.loss > 0.0);
+        let p = off.params();
+        for (i, h) in [(0usize, 1e-5), (1, 1e-5), (2, 1e-4), (3, 1e-5)] {
+            let shifted = |d: f64| {
+                let mut q = p;
+                q[i] += d;
+                Response {
+                    sigma: q[0],
+                    t0: q[1],
+                    tails: vec![(q[2], q[3])],
+                }
+            };
+            let loss = |d: f64| at(&shifted(d)).compare(&raw, &measured).loss;
+            let fd = (loss(h) - loss(-h)) / (2.0 * h);
+            assert!(
+                (fd - g[i]).abs()
+                    < 1e-3
+                        * fd.abs()
+                            .max(1e-3 * g.iter().fold(0.0f64, |a, v| a.max(v.abs()))),
+                "parameter {i}: FD {fd} against {}",
+                g[i]
+            );
+        }
+    }
+
+    #[test]
+    fn the_render_adjoint_matches_finite_differences() {
+        let mut raw = raw();
+        // A smooth render, so that single-bin perturbations are well within it.
+        raw.iter_mut()
+            .enumerate()
+            .for_each(|(i, v)| *v += (0.3 * ((i % BINS) as f32 / 30.0).sin()).abs());
+        let m = model(truth(), POISSON, 5);
+        let measured = counts(&m, &raw);
+        let c = m.compare(&raw, &measured);
+        let scale = c.adjoint.iter().fold(0.0f32, |a, v| a.max(v.abs()));
+        for i in [FIRST + 40, BINS + 60, 17 * BINS + 90, 100 * BINS + 130] {
+            let eps = 1e-2f32;
+            let loss = |e: f32| {
+                let mut r = raw.clone();
+                r[i] += e;
+                m.compare(&r, &measured).loss
+            };
+            let fd = (loss(eps) - loss(-eps)) / (2.0 * f64::from(eps));
+            assert!(
+                (f64::from(c.adjoint[i]) - fd).abs() < 2e-3 * f64::from(scale),
+                "bin {i}: {} against {fd}",
+                c.adjoint[i]
+            );
+        }
+    }
+
+    #[test]
+    fn calibration_recovers_the_response_and_held_out_points_pick_its_tails() {
+        let raw = raw();
+        let measured = counts(&model(truth(), POISSON, 0), &raw);
+        let mut m = model(crate::fit::capture::stanford_prior(), POISSON, 6);
+        let tried = m.calibrate(&raw, &measured, &stanford_prior());
+        let r = &m.response;
+        assert_eq!(r.tails.len(), 1, "{tried:?} {r:?}");
+        let t = truth();
+        assert!((r.sigma / t.sigma - 1.0).abs() < 0.1, "{r:?}");
+        assert!((r.t0 - t.t0).abs() < 0.1 * t.sigma, "{r:?}");
+        assert!(
+            (r.tails[0].0 - 0.4).abs() < 0.05 && (r.tails[0].1 / 0.03 - 1.0).abs() < 0.15,
+            "{r:?}"
+        );
+        // Without a tail the held-out deviance is clearly worse (the choice means
+        // something); two tails gain nothing held out.
+        assert!(tried[0].2 > tried[1].2 + 0.03, "{tried:?}");
+        assert!(tried[2].2 >= tried[1].2, "{tried:?}");
+    }
+}

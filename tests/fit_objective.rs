@@ -38,7 +38,26 @@ fn small_letter() -> (Scene, RenderOptions, Vec<f32>) {
 
 #[test]
 fn objective_gradient_matches_finite_differences_with_jitter_and_per_bin_background() {
-    gradient_check(None);
+    gradient_check(None, None);
+}
+
+/// Through a real capture's model (`fit::capture`): a response with a tail, a gain field,
+/// a floor, the direct tails, the Poisson deviance, one scan point held out.
+#[test]
+fn objective_gradient_matches_finite_differences_through_the_capture_model() {
+    use umbra::fit::capture::CaptureOptions;
+    use umbra::fit::linear_fit::Likelihood;
+    let options = CaptureOptions {
+        prior: umbra::film::response::Response {
+            sigma: 0.03,
+            t0: 0.005,
+            tails: vec![(0.3, 0.06)],
+        },
+        ..CaptureOptions::stanford(Likelihood::Poisson {
+            counts_per_value: 1.0,
+        })
+    };
+    gradient_check(None, Some(options));
 }
 
 /// The same through a measured impulse response (a SPAD-like exponential tail).
@@ -46,19 +65,30 @@ fn objective_gradient_matches_finite_differences_with_jitter_and_per_bin_backgro
 fn objective_gradient_matches_finite_differences_through_an_irf() {
     let taps: Vec<f64> = (0..12).map(|k| (-(k as f64) / 3.0).exp()).collect();
     let total: f64 = taps.iter().sum();
-    gradient_check(Some(umbra::film::irf::Irf {
-        bin_width: 0.01,
-        taps: taps.iter().map(|t| t / total).collect(),
-    }));
+    gradient_check(
+        Some(umbra::film::irf::Irf {
+            bin_width: 0.01,
+            taps: taps.iter().map(|t| t / total).collect(),
+        }),
+        None,
+    );
 }
 
-fn gradient_check(irf: Option<umbra::film::irf::Irf>) {
+fn gradient_check(
+    irf: Option<umbra::film::irf::Irf>,
+    capture: Option<umbra::fit::capture::CaptureOptions>,
+) {
     // Measurement: the true letter, scaled, plus a decaying per-bin floor.
     let (scene, opts, mut measured) = small_letter();
     let bins = scene.film.temporal_bins as usize;
     let peak = measured.iter().cloned().fold(0.0f32, f32::max);
     for (i, v) in measured.iter_mut().enumerate() {
         *v = 3.0 * *v + 0.05 * peak * (-((i % bins) as f32) / 30.0).exp();
+    }
+    if capture.is_some() {
+        // Photon counts: a peak of a few hundred, where the deviance is far from zero.
+        let k = 200.0 / (3.0 * peak);
+        measured.iter_mut().for_each(|v| *v *= k);
     }
     // The fitted mesh: the letter moved 3 cm back and bent, with uneven albedo.
     let mut mesh = umbra::fit::fit_mesh(&scene.objects[0].mesh);
@@ -77,6 +107,11 @@ fn gradient_check(irf: Option<umbra::film::irf::Irf>) {
         first_bin: 20,
         jitter_opl: 0.04,
         irf,
+        capture: capture.map(|c| {
+            let model = c.at_stage(&scene, &measured, 20, 1, (6, 6));
+            assert!(model.in_fit.iter().any(|&b| !b), "a point is held out");
+            model
+        }),
         ..common::objective(&scene, opts, measured)
     };
     let eval = objective.evaluate(&mesh).unwrap();
@@ -132,10 +167,12 @@ fn objective_finds_a_time_offset_of_the_measurement() {
         time_offset_max_opl: max,
         ..common::objective(&scene, opts, measured.clone())
     };
-    let (_, loss, _, offset) = objective(0.05).render(&mesh).unwrap();
+    let r = objective(0.05).render(&mesh).unwrap();
+    let (loss, offset) = (r.loss, r.time_offset_opl);
     assert!((offset - 0.017).abs() < 2e-4, "offset {offset}");
     assert!(loss < 1e-8, "loss {loss}");
-    let (_, held, _, zero) = objective(0.0).render(&mesh).unwrap();
+    let r = objective(0.0).render(&mesh).unwrap();
+    let (held, zero) = (r.loss, r.time_offset_opl);
     assert_eq!(zero, 0.0);
     assert!(held > 1e-2, "without the offset: {held}");
 }

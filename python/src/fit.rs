@@ -39,7 +39,7 @@ fn mesh_dict<'py>(py: Python<'py>, m: &optim::Mesh) -> PyResult<Bound<'py, PyDic
 #[pyfunction]
 #[pyo3(signature = (
     scene, measured, output, *, init = "plane", schedule = None, iters = None, resume = false,
-    model = "tri3", spp = 16, known_scale = false, background = None, jitter = None, irf = None,
+    model = "tri3", spp = 16, known_scale = false, background = None, likelihood = None, jitter = None, irf = None,
     time_offset = None, reflectance = None, retro_falloff = None, ignore_before = None, truth = false, bin = None,
     target_spp = 4096, threads = None, progress = None, boundary_terms = None
 ))]
@@ -57,6 +57,7 @@ pub fn fit<'py>(
     spp: u32,
     known_scale: bool,
     background: Option<String>,
+    likelihood: Option<String>,
     jitter: Option<f64>,
     irf: Option<String>,
     time_offset: Option<f64>,
@@ -111,6 +112,7 @@ pub fn fit<'py>(
         spp,
         known_scale,
         background,
+        likelihood,
         jitter,
         irf,
         time_offset,
@@ -215,6 +217,18 @@ pub fn fit<'py>(
     d.set_item("history", history)?;
     d.set_item("final_loss", summary.final_loss)?;
     d.set_item("relative_l2", summary.relative_l2)?;
+    d.set_item("deviance_per_bin", summary.deviance_per_bin)?;
+    d.set_item("held_out_loss", summary.held_out_loss)?;
+    if let Some(r) = &summary.response {
+        let resp = PyDict::new(py);
+        resp.set_item("sigma_ps", r.sigma_ps)?;
+        resp.set_item("t0_ps", r.t0_ps)?;
+        resp.set_item("tail_weights", r.tail_weights.clone())?;
+        resp.set_item("tail_tau_ps", r.tail_tau_ps.clone())?;
+        d.set_item("response", resp)?;
+    } else {
+        d.set_item("response", py.None())?;
+    }
     d.set_item("scale", summary.scale)?;
     d.set_item("background", summary.background)?;
     d.set_item("time_offset", summary.time_offset)?;

@@ -26,6 +26,11 @@ pub enum Background {
     /// scan point, e.g. the tail of the direct light and the wall's own response in a
     /// confocal capture rectified to the wall, or a time-varying ambient floor.
     PerBin,
+    /// A real capture's background per scan point: a floor smooth over the scan and the
+    /// direct return's tail scaled by each point's direct counts, with a gain field and a
+    /// calibrated detector response ([`super::capture`], which replaces this module's
+    /// closed form: a fit with it never comes here).
+    PerPoint,
 }
 
 impl std::str::FromStr for Background {
@@ -35,8 +40,9 @@ impl std::str::FromStr for Background {
             "none" | "false" => Ok(Background::None),
             "constant" | "true" => Ok(Background::Constant),
             "per-bin" => Ok(Background::PerBin),
+            "per-point" => Ok(Background::PerPoint),
             other => Err(format!(
-                "'{other}' is not a background model: none, constant or per-bin"
+                "'{other}' is not a background model: none, constant, per-bin or per-point"
             )),
         }
     }
@@ -220,7 +226,9 @@ impl Intensity {
                 background: 0.0,
                 background_bins: Vec::new(),
             },
-            Background::Constant => {
+            // Per-point backgrounds are fitted by `fit::capture`; as a closed form here
+            // (a caller that did not route them there) the nearest is one constant.
+            Background::Constant | Background::PerPoint => {
                 let (scale, background) = fit_constant(&total, model.scale);
                 Intensity {
                     scale,

@@ -207,7 +207,18 @@ pub fn fit_poisson<D: Design>(
             .filter(|&i| !(nonneg.contains(&i) && beta[i] <= 0.0 && grad[i] > 0.0))
             .collect();
         let neg: [f64; MAX_COLS] = std::array::from_fn(|i| -grad[i]);
-        let Some(step) = solve(hess, &neg, &free) else {
+        // A column that is zero on the window (a tail of no direct counts) has no
+        // curvature and stays where it is; a nearly dependent set is damped.
+        let free: Vec<usize> = free.into_iter().filter(|&i| hess[i][i] > 0.0).collect();
+        let damped = |k: f64| {
+            let mut h = *hess;
+            (0..n).for_each(|i| h[i][i] *= 1.0 + k);
+            h
+        };
+        let Some(step) = [0.0, 1e-9, 1e-6, 1e-3]
+            .iter()
+            .find_map(|&k| solve(&damped(k), &neg, &free))
+        else {
             break;
         };
         let mut dir = [0.0; MAX_COLS];
@@ -407,18 +418,37 @@ fn constrained(
     best
 }
 
-/// Solves `G[free, free] β = r[free]` by Gaussian elimination with partial pivoting;
-/// `None` if singular (an empty `free` gives an empty solution).
+/// Solves `G[free, free] β = r[free]` by Gaussian elimination with partial pivoting,
+/// after scaling `G` to unit diagonal (the columns' scales differ by orders of magnitude:
+/// a render in counts against a tail in counts per direct count); `None` if singular (an
+/// empty `free` gives an empty solution).
 fn solve(g: &[[f64; MAX_COLS]; MAX_COLS], r: &[f64; MAX_COLS], free: &[usize]) -> Option<Vec<f64>> {
     let k = free.len();
+    let d: Vec<f64> = free
+        .iter()
+        .map(|&i| {
+            let v = g[i][i].abs().sqrt();
+            if v > 0.0 {
+                1.0 / v
+            } else {
+                1.0
+            }
+        })
+        .collect();
     let mut a: Vec<Vec<f64>> = free
         .iter()
-        .map(|&i| free.iter().map(|&j| g[i][j]).chain([r[i]]).collect())
+        .enumerate()
+        .map(|(ii, &i)| {
+            free.iter()
+                .enumerate()
+                .map(|(jj, &j)| g[i][j] * d[ii] * d[jj])
+                .chain([r[i] * d[ii]])
+                .collect()
+        })
         .collect();
-    let scale = (0..k).map(|i| a[i][i].abs()).fold(0.0, f64::max);
     for c in 0..k {
         let piv = (c..k).max_by(|&x, &y| a[x][c].abs().total_cmp(&a[y][c].abs()))?;
-        if a[piv][c].abs() <= 1e-13 * scale {
+        if a[piv][c].abs() <= 1e-12 {
             return None;
         }
         a.swap(c, piv);
@@ -436,5 +466,5 @@ fn solve(g: &[[f64; MAX_COLS]; MAX_COLS], r: &[f64; MAX_COLS], free: &[usize]) -
         let s: f64 = (c + 1..k).map(|j| a[c][j] * x[j]).sum();
         x[c] = (a[c][k] - s) / a[c][c];
     }
-    Some(x)
+    Some(x.iter().zip(&d).map(|(x, d)| x * d).collect())
 }

@@ -14,6 +14,7 @@
 //! same mesh renders the same samples (common random numbers between the cost and the
 //! gradient, and an exact resume), while every new iterate sees new noise.
 
+use super::capture::CaptureModel;
 use super::intensity::{Intensity, IntensityModel};
 use super::time_offset::Comparator;
 use crate::adjoint;
@@ -90,6 +91,9 @@ pub struct UmbraObjective {
     /// Search an unknown time offset `|δ| ≤` this (OPL, m; needs `jitter_opl > 0`;
     /// [`super::time_offset`]); 0: none.
     pub time_offset_max_opl: f64,
+    /// A real capture's calibrated model ([`super::capture`]): used instead of the
+    /// jitter/IRF, intensity and time offset above when present.
+    pub capture: Option<CaptureModel>,
 }
 
 /// The first bin of the scene's film that starts at or after `ignore_before_opl` (m),
@@ -137,6 +141,24 @@ struct Forward {
     adjoint: Vec<f32>,
     intensity: Intensity,
     time_offset_opl: f64,
+    /// The fitted transient `μ` (zero in the unfitted bins), with a capture model.
+    model: Option<Vec<f32>>,
+    /// The loss at the held-out scan points (NaN: none held out, or no capture model).
+    held_out: f64,
+}
+
+/// What [`UmbraObjective::render`] returns.
+pub struct Rendered {
+    /// The render as compared (through the detector response, unfitted bins zeroed).
+    pub compared: Vec<f32>,
+    /// The fitted transient: `s · compared + background`, or the capture model's `μ`.
+    pub model: Vec<f32>,
+    pub loss: f64,
+    pub intensity: Intensity,
+    /// The time offset (OPL, m): the searched `δ`, or the calibrated response's `t0`.
+    pub time_offset_opl: f64,
+    /// The loss at the held-out scan points (NaN: none).
+    pub held_out: f64,
 }
 
 impl UmbraObjective {
@@ -156,12 +178,32 @@ impl UmbraObjective {
         }
     }
 
-    /// Renders `mesh` and returns `(render, loss, (s, b), δ)` without the gradient: the
-    /// render as compared (jitter, offset, leading bins left out), and the time offset
-    /// (OPL, m).
-    pub fn render(&self, mesh: &Mesh) -> crate::Result<(Vec<f32>, f64, Intensity, f64)> {
+    /// Renders `mesh` and compares it, without the gradient.
+    pub fn render(&self, mesh: &Mesh) -> crate::Result<Rendered> {
         let f = self.forward(mesh)?;
-        Ok((f.render, f.loss, f.intensity, f.time_offset_opl))
+        let bins = self.scene.film.temporal_bins as usize;
+        let model = f.model.unwrap_or_else(|| {
+            f.render
+                .iter()
+                .enumerate()
+                .map(|(i, &h)| {
+                    let t = i % bins.max(1);
+                    if t < self.first_bin {
+                        0.0
+                    } else {
+                        (f.intensity.scale * h as f64 + f.intensity.background_at(t)) as f32
+                    }
+                })
+                .collect()
+        });
+        Ok(Rendered {
+            compared: f.render,
+            model,
+            loss: f.loss,
+            intensity: f.intensity,
+            time_offset_opl: f.time_offset_opl,
+            held_out: f.held_out,
+        })
     }
 
     /// `Z K_δ H` of `mesh` at a given time offset (OPL, m): the render as the loss sees
@@ -169,13 +211,19 @@ impl UmbraObjective {
     /// of a fitted mesh at the whole's offset: `fit::determined`).
     pub fn response(&self, mesh: &Mesh, time_offset_opl: f64) -> crate::Result<Vec<f32>> {
         let (_, _, _, raw) = self.raw(mesh)?;
+        if let Some(c) = &self.capture {
+            return Ok(c.blur(&raw).0);
+        }
         let shift = time_offset_opl / self.scene.film.bin_width_opl as f64;
         Ok(self.comparator().response(&raw, shift))
     }
 
     /// The scene with `mesh` as its hidden object, its geometry, the render options and
     /// the raw render.
-    fn raw(&self, mesh: &Mesh) -> crate::Result<(Scene, SceneGeometry, RenderOptions, Vec<f32>)> {
+    pub(super) fn raw(
+        &self,
+        mesh: &Mesh,
+    ) -> crate::Result<(Scene, SceneGeometry, RenderOptions, Vec<f32>)> {
         let mut scene = self.scene.clone();
         scene.objects = vec![hidden_object(
             mesh,
@@ -201,6 +249,22 @@ impl UmbraObjective {
     /// and the loss with its adjoint.
     fn forward(&self, mesh: &Mesh) -> crate::Result<Forward> {
         let (scene, geom, opts, raw) = self.raw(mesh)?;
+        if let Some(capture) = &self.capture {
+            let c = capture.compare(&raw, &self.measured);
+            let intensity = capture.intensity(&c);
+            return Ok(Forward {
+                scene,
+                geom,
+                opts,
+                render: c.blurred,
+                loss: c.loss,
+                adjoint: c.adjoint,
+                intensity,
+                time_offset_opl: capture.response.t0,
+                model: Some(c.model),
+                held_out: c.held_out,
+            });
+        }
         let c = self.comparator().compare(&raw, &self.measured);
         let (render, loss, adjoint, intensity) = (c.fitted, c.loss, c.adjoint, c.intensity);
         let time_offset_opl = c.offset_bins * scene.film.bin_width_opl as f64;
@@ -213,6 +277,8 @@ impl UmbraObjective {
             adjoint,
             intensity,
             time_offset_opl,
+            model: None,
+            held_out: f64::NAN,
         })
     }
 }
@@ -267,11 +333,18 @@ impl MeshObjective for UmbraObjective {
             loss: f.loss,
             d_vertices,
             d_values,
-            report: vec![
-                ("scale".into(), f.intensity.scale),
-                ("background".into(), f.intensity.background),
-                ("time_offset".into(), f.time_offset_opl),
-            ],
+            report: {
+                let mut r = vec![
+                    ("scale".into(), f.intensity.scale),
+                    ("background".into(), f.intensity.background),
+                    ("time_offset".into(), f.time_offset_opl),
+                ];
+                if let Some(c) = &self.capture {
+                    r.push(("held_out".into(), f.held_out));
+                    r.push(("response_sigma".into(), c.response.sigma));
+                }
+                r
+            },
         })
     }
 }

@@ -79,11 +79,17 @@ pub struct FitRequest {
     pub spp: u32,
     /// The measurement has Umbra's absolute scale: no intensity scale is fitted.
     pub known_scale: bool,
-    /// Default: none for the demonstration, per-bin for LCT captures, else constant.
+    /// Default: none for the demonstration, per-point for LCT captures (with the
+    /// calibrated capture model, `fit::capture`), else constant.
     pub background: Option<Background>,
+    /// poisson or l2; default poisson for photon counts with the per-point background,
+    /// else l2.
+    pub likelihood: Option<String>,
     /// Detector jitter σ (OPL, m); default 0.
     pub jitter: Option<f64>,
-    /// none, direct, or a `.npy` file of taps; default direct for LCT captures, else none.
+    /// none, direct, calibrate (with the per-point background: a core and tails calibrated
+    /// from the capture, `fit::capture`), or a `.npy` file of taps; default calibrate with
+    /// the per-point background, else none.
     pub irf: Option<String>,
     /// Search an unknown time offset within ± this (OPL, m).
     pub time_offset: Option<f64>,
@@ -118,6 +124,7 @@ impl FitRequest {
             spp: 16,
             known_scale: false,
             background: None,
+            likelihood: None,
             jitter: None,
             irf: None,
             time_offset: None,
@@ -156,6 +163,80 @@ pub fn check_schedule(s: &Schedule) -> std::result::Result<(), String> {
     Ok(())
 }
 
+/// The capture model of `--background per-point` (`fit::capture`), its likelihood and
+/// response choices checked against the other options; `None` for other backgrounds.
+fn capture_options(
+    n: &dyn Fn(&str) -> String,
+    req: &FitRequest,
+    scene: &Scene,
+    per_point: bool,
+    counts: bool,
+    scan_block: u32,
+) -> Result<Option<super::capture::CaptureOptions>> {
+    use super::linear_fit::Likelihood;
+    let likelihood = match req.likelihood.as_deref() {
+        None if per_point && counts => Likelihood::Poisson {
+            counts_per_value: f64::from(scan_block * scan_block),
+        },
+        None | Some("l2") => Likelihood::L2,
+        Some("poisson") if !counts => {
+            return Err(Error::Invalid(format!(
+                "{} poisson: the measurement is not photon counts (non-negative integers)",
+                n("likelihood")
+            )))
+        }
+        Some("poisson") => Likelihood::Poisson {
+            counts_per_value: f64::from(scan_block * scan_block),
+        },
+        Some(other) => {
+            return Err(Error::Invalid(format!(
+                "{}: '{other}' is not one of poisson, l2",
+                n("likelihood")
+            )))
+        }
+    };
+    let irf = req.irf.as_deref();
+    if !per_point {
+        if likelihood != Likelihood::L2 {
+            return Err(Error::Invalid(format!(
+                "{} poisson needs {} per-point (the calibrated capture model)",
+                n("likelihood"),
+                n("background")
+            )));
+        }
+        if irf == Some("calibrate") {
+            return Err(Error::Invalid(format!(
+                "{} calibrate needs {} per-point (the calibrated capture model)",
+                n("irf"),
+                n("background")
+            )));
+        }
+        return Ok(None);
+    }
+    if scene.capture == CaptureType::Exhaustive {
+        return Err(Error::Invalid(format!(
+            "{} per-point models a scanned capture (confocal or single laser spot); this scene's capture is exhaustive",
+            n("background")
+        )));
+    }
+    if let Some(other) = irf.filter(|i| *i != "calibrate") {
+        return Err(Error::Invalid(format!(
+            "{} {other}: with {} per-point the detector response is calibrated from the capture ({} calibrate)",
+            n("irf"),
+            n("background"),
+            n("irf")
+        )));
+    }
+    if req.time_offset.is_some() {
+        return Err(Error::Invalid(format!(
+            "{}: with {} per-point the time offset is the calibrated response's t0",
+            n("time_offset"),
+            n("background")
+        )));
+    }
+    Ok(Some(super::capture::CaptureOptions::stanford(likelihood)))
+}
+
 /// Chamfer distances to the truth (mm); "seen" = the truth's surface seen from the
 /// scan ([`chamfer_seen`]).
 #[derive(Clone, Debug, serde::Serialize)]
@@ -175,8 +256,17 @@ pub struct ChamferSummary {
 pub struct Summary {
     pub iterations: usize,
     pub seconds: f64,
+    /// The loss the fit minimised: relative squared error (L2), or the Poisson deviance
+    /// per fitted bin.
     pub final_loss: f64,
+    /// `‖μ − M‖ / ‖M‖` of the fitted transient over the fitted bins, whatever the loss.
     pub relative_l2: f64,
+    /// The Poisson deviance per fitted bin (a perfect model of the counts: about 1).
+    pub deviance_per_bin: Option<f64>,
+    /// The loss at the scan points held out of the fit (`--background per-point`).
+    pub held_out_loss: Option<f64>,
+    /// The detector response calibrated from the capture (`--background per-point`).
+    pub response: Option<ResponseSummary>,
     pub scale: f64,
     pub background: f64,
     /// Fitted time offset (OPL, m; 0 unless searched).
@@ -203,6 +293,29 @@ pub struct Summary {
     /// With a known truth: the baselines study's score (`fit::score`), the same numbers
     /// `umbra recon --truth` gives a reconstruction's surface.
     pub score: Option<super::score::SurfaceScore>,
+}
+
+/// A calibrated detector response in picoseconds (`fit::capture`).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ResponseSummary {
+    /// The core's standard deviation and its time zero (ps).
+    pub sigma_ps: f64,
+    pub t0_ps: f64,
+    /// Per tail, its weight and time constant (ps).
+    pub tail_weights: Vec<f64>,
+    pub tail_tau_ps: Vec<f64>,
+}
+
+impl ResponseSummary {
+    fn of(r: &crate::film::response::Response) -> ResponseSummary {
+        let ps = |opl: f64| opl / 2.997_924_58e-4;
+        ResponseSummary {
+            sigma_ps: ps(r.sigma),
+            t0_ps: ps(r.t0),
+            tail_weights: r.tails.iter().map(|t| t.0).collect(),
+            tail_tau_ps: r.tails.iter().map(|t| ps(t.1)).collect(),
+        }
+    }
 }
 
 /// What [`run`] returns.
@@ -471,18 +584,32 @@ pub fn run(
     if let Some(note) = monte_carlo_warning(&n, model, req.spp, &schedule) {
         log(&note);
     }
+    let background = req.background.unwrap_or(if demo {
+        Background::None
+    } else if is_lct {
+        Background::PerPoint
+    } else {
+        Background::Constant
+    });
+    let per_point = background == Background::PerPoint;
+    let capture = capture_options(&n, req, &scene, per_point, counts, bin.1)?;
     let irf_choice = req
         .irf
         .clone()
-        .unwrap_or_else(|| if is_lct { "direct" } else { "none" }.into());
+        .unwrap_or_else(|| if per_point { "calibrate" } else { "none" }.into());
     if irf_choice != "none" && req.jitter.is_some() {
         let (jitter, irf) = (n("jitter"), n("irf"));
         return Err(Error::Invalid(if req.irf.is_some() {
             format!("{jitter} and {irf} both give the detector's response: give one")
         } else {
-            format!("{jitter} and {irf} both give the detector's response: LCT captures use {irf} direct by default, add {irf} none for the Gaussian")
+            format!("{jitter} and {irf} both give the detector's response: with {} per-point the response is calibrated from the capture ({irf} calibrate)", n("background"))
         }));
     }
+    let irf_choice = if irf_choice == "calibrate" {
+        "none".to_string()
+    } else {
+        irf_choice
+    };
     let irf = detector_response(&n, &irf_choice, &scene, &measured, ignore_before_opl, log)?;
     let jitter_opl = req.jitter.unwrap_or(0.0);
     if irf.is_some() && req.time_offset.is_some() {
@@ -528,13 +655,6 @@ pub fn run(
             n("jitter")
         )));
     }
-    let background = req.background.unwrap_or(if demo {
-        Background::None
-    } else if is_lct {
-        Background::PerBin
-    } else {
-        Background::Constant
-    });
     let mut cfg = FitConfig {
         schedule,
         init: Init::Plane,
@@ -553,6 +673,7 @@ pub fn run(
         time_offset_max_opl,
         reflectance,
         photon_counts: counts.then_some(bin.1),
+        capture,
     };
     let AutoFit {
         name: chosen_name,
@@ -576,11 +697,11 @@ pub fn run(
     // A fit that ends where the surface returns nothing it can use has failed, whatever
     // its exit status: say so rather than report a mesh as if it were one.
     let no_signal =
-        report.final_loss >= 0.999 || (!req.known_scale && report.intensity.scale <= 0.0);
+        report.relative_l2 >= 0.999 || (!req.known_scale && report.intensity.scale <= 0.0);
     if no_signal {
         log(&format!(
             "warning: the fitted surface returns no light the fit can use (relative L2 {:.3}, scale {:.3e}): the fit failed; a step size (lr) too large for the scene throws the mesh out of view (see loss.csv)",
-            report.final_loss.sqrt(),
+            report.relative_l2,
             report.intensity.scale
         ));
     }
@@ -600,7 +721,13 @@ pub fn run(
         iterations: report.history.len(),
         seconds: report.seconds,
         final_loss: report.final_loss,
-        relative_l2: report.final_loss.sqrt(),
+        relative_l2: report.relative_l2,
+        deviance_per_bin: report.deviance,
+        held_out_loss: report
+            .held_out_loss
+            .is_finite()
+            .then_some(report.held_out_loss),
+        response: report.response.as_ref().map(ResponseSummary::of),
         scale: report.intensity.scale,
         background: report.intensity.background,
         time_offset: report.time_offset_opl,

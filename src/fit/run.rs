@@ -16,6 +16,7 @@
 //!   identity ([`identity`]): a resume with another scene, measurement, model or option
 //!   is refused, naming what differs.
 
+use super::capture::CaptureOptions;
 use super::determined::face_determination;
 use super::init::{depth_from_data, plane, sphere};
 use super::intensity::{Intensity, IntensityModel};
@@ -84,6 +85,10 @@ pub struct FitConfig {
     /// noise are left out of `mesh.obj` ([`super::determined`]); `None` (a render, data of
     /// unknown noise): no face is left out for it.
     pub photon_counts: Option<u32>,
+    /// A real capture's calibrated model ([`super::capture`]): response, gain field,
+    /// floor, direct tails, likelihood; replaces `intensity`, `jitter_opl`, `irf` and
+    /// `time_offset_max_opl` when present.
+    pub capture: Option<CaptureOptions>,
 }
 
 /// What a fit produced.
@@ -100,10 +105,20 @@ pub struct FitReport {
     /// The loss `‖s H + b − M‖² / ‖M‖²` over the fitted bins of the final mesh at full
     /// resolution (its square root is the relative L2 error).
     pub final_loss: f64,
+    /// `‖μ − M‖ / ‖M‖` of the final fitted transient `μ` over the fitted bins (the
+    /// square root of `final_loss` when the loss is L2).
+    pub relative_l2: f64,
+    /// The Poisson deviance per fitted bin, when that is the loss (a perfect model of
+    /// counts scores about 1).
+    pub deviance: Option<f64>,
     /// The final mesh's intensity scale and background.
     pub intensity: Intensity,
     /// The fitted time offset (OPL, m; 0 unless searched).
     pub time_offset_opl: f64,
+    /// The detector response calibrated on the final mesh (with a capture model).
+    pub response: Option<crate::film::response::Response>,
+    /// The loss at the held-out scan points of the final mesh (NaN: none held out).
+    pub held_out_loss: f64,
     pub rejected_steps: u64,
     /// Faces left out of `mesh` because no measurement lights and sees them
     /// ([`super::support`]), besides the dark ones.
@@ -156,7 +171,9 @@ struct Factory<'a> {
 }
 
 impl Factory<'_> {
-    fn build(&self, stage: &Stage) -> Result<UmbraObjective> {
+    /// The objective of `stage`; with a capture model, its response is calibrated on
+    /// `start` rendered (where the stage's bins resolve it, [`super::capture`]).
+    fn build(&self, stage: &Stage, start: &Mesh) -> Result<UmbraObjective> {
         let (scene, measured) = at_resolution(
             self.scene,
             self.measured,
@@ -176,9 +193,19 @@ impl Factory<'_> {
             ..RenderOptions::from_scene(&scene)
         };
         let first_bin = first_fitted_bin(&scene, self.cfg.ignore_before_opl);
+        let grid = (self.scene.scan.nx as usize, self.scene.scan.ny as usize);
+        let capture = self.cfg.capture.as_ref().map(|o| {
+            o.at_stage(
+                &scene,
+                &measured,
+                first_bin,
+                stage.scan_downsample as usize,
+                grid,
+            )
+        });
         let mut measured = measured;
         zero_leading_bins(&mut measured, scene.film.temporal_bins as usize, first_bin);
-        Ok(UmbraObjective {
+        let mut objective = UmbraObjective {
             first_bin,
             scene,
             measured,
@@ -190,7 +217,16 @@ impl Factory<'_> {
             jitter_opl: self.cfg.jitter_opl,
             irf: self.cfg.irf.clone(),
             time_offset_max_opl: self.cfg.time_offset_max_opl,
-        })
+            capture,
+        };
+        if let (Some(options), Some(mut capture)) = (&self.cfg.capture, objective.capture.take()) {
+            if options.calibrates_at(capture.bin_width) {
+                let (_, _, _, raw) = objective.raw(start)?;
+                capture.calibrate(&raw, &objective.measured, &options.prior);
+            }
+            objective.capture = Some(capture);
+        }
+        Ok(objective)
     }
 }
 
@@ -199,9 +235,9 @@ impl ObjectiveFactory for Factory<'_> {
         &mut self,
         stage: &Stage,
         _index: usize,
-        _start: &Mesh,
+        start: &Mesh,
     ) -> std::result::Result<Box<dyn MeshObjective>, String> {
-        self.build(stage)
+        self.build(stage, start)
             .map(|o| Box::new(o) as Box<dyn MeshObjective>)
             .map_err(|e| e.to_string())
     }
@@ -229,14 +265,15 @@ pub fn identity(scene: &Scene, measured: &[f32], cfg: &FitConfig) -> Identity {
     let total: f64 = measured.iter().map(|&v| v as f64).sum();
     let model = format!("{}, {} spp", cfg.model.name(), cfg.spp);
     let options = format!(
-        "intensity {:?}, albedo {}, two-sided {}, ignore before {:?} m, jitter {} m, time offset {} m, reflectance {:?}",
+        "intensity {:?}, albedo {}, two-sided {}, ignore before {:?} m, jitter {} m, time offset {} m, reflectance {:?}, capture model {:?}",
         cfg.intensity,
         cfg.albedo,
         cfg.two_sided,
         cfg.ignore_before_opl,
         cfg.jitter_opl,
         cfg.time_offset_max_opl,
-        cfg.reflectance
+        cfg.reflectance,
+        cfg.capture
     );
     let irf = format!("{:?}", cfg.irf);
     let options_hash = Fnv64::new()
@@ -376,8 +413,14 @@ pub fn fit(
         scan_downsample: 1,
         ..last_stage.clone()
     };
-    let objective = factory.build(&full)?;
-    let (render, final_loss, intensity, time_offset_opl) = objective.render(&outcome.mesh)?;
+    let objective = factory.build(&full, &outcome.mesh)?;
+    let rendered = objective.render(&outcome.mesh)?;
+    let (render, final_loss, intensity, time_offset_opl) = (
+        rendered.compared,
+        rendered.loss,
+        rendered.intensity,
+        rendered.time_offset_opl,
+    );
     // Faces the data drove dark, faces no measurement lights and sees (`support`), and
     // faces whose signal the data cannot tell from noise (`determined`) are not surface
     // the data support: mesh.obj drops them, mesh_all.obj keeps all.
@@ -429,7 +472,7 @@ pub fn fit(
         files.push(path);
     }
     files.extend(write_loss(out, &outcome.history)?);
-    files.push(write_transients(out, &base, measured, &render, &intensity)?);
+    files.push(write_transients(out, &base, measured, &rendered.model)?);
     // The picture is a by-product: the fit's results must not be lost over it.
     let picture = out.join("reconstruction.png");
     match write_reconstruction_png(&picture, &base, measured, first, &outcome.mesh) {
@@ -437,20 +480,18 @@ pub fn fit(
         Err(e) => eprintln!("umbra fit: warning: {} not written: {e}", picture.display()),
     }
     let bins = base.film.temporal_bins as usize;
-    let render = render
-        .iter()
-        .enumerate()
-        .map(|(i, &h)| {
-            let t = i % bins.max(1);
-            if t < first {
-                0.0
-            } else {
-                (intensity.scale * h as f64 + intensity.background_at(t)) as f32
-            }
-        })
-        .collect();
+    let relative_l2 = relative_l2(&rendered.model, measured, bins, first);
+    let deviance = cfg
+        .capture
+        .as_ref()
+        .filter(|c| matches!(c.likelihood, super::linear_fit::Likelihood::Poisson { .. }))
+        .map(|_| final_loss);
     Ok(FitReport {
-        render,
+        relative_l2,
+        deviance,
+        render: rendered.model,
+        response: objective.capture.as_ref().map(|c| c.response.clone()),
+        held_out_loss: rendered.held_out,
         mesh: surface,
         full_mesh: outcome.mesh,
         history: outcome.history,
@@ -466,9 +507,28 @@ pub fn fit(
     })
 }
 
+/// `‖μ − M‖ / ‖M‖` over bins `first..` of every `bins`-long row.
+fn relative_l2(model: &[f32], measured: &[f32], bins: usize, first: usize) -> f64 {
+    let (mut rr, mut mm) = (0.0f64, 0.0f64);
+    for (mu, m) in model.chunks_exact(bins).zip(measured.chunks_exact(bins)) {
+        for t in first..bins {
+            let (a, b) = (f64::from(mu[t]), f64::from(m[t]));
+            rr += (a - b) * (a - b);
+            mm += b * b;
+        }
+    }
+    if mm > 0.0 {
+        (rr / mm).sqrt()
+    } else {
+        0.0
+    }
+}
+
 fn write_loss(out: &Path, history: &[LossRecord]) -> Result<Vec<PathBuf>> {
     let csv_path = out.join("loss.csv");
-    let mut csv = String::from("iteration,stage,cost,data_loss,smoothness,scale,background\n");
+    let mut csv = String::from(
+        "iteration,stage,cost,data_loss,smoothness,scale,background,held_out,response_sigma\n",
+    );
     for r in history {
         let value = |key: &str| {
             r.report
@@ -477,14 +537,16 @@ fn write_loss(out: &Path, history: &[LossRecord]) -> Result<Vec<PathBuf>> {
                 .map_or(f64::NAN, |(_, v)| *v)
         };
         csv.push_str(&format!(
-            "{},{},{:e},{:e},{:e},{:e},{:e}\n",
+            "{},{},{:e},{:e},{:e},{:e},{:e},{:e},{:e}\n",
             r.iteration,
             r.stage,
             r.cost,
             r.data_loss,
             r.smoothness,
             value("scale"),
-            value("background")
+            value("background"),
+            value("held_out"),
+            value("response_sigma")
         ));
     }
     write_atomic(&csv_path, csv.as_bytes()).map_err(|e| Error::io(&csv_path, e))?;
@@ -534,8 +596,7 @@ fn write_transients(
     out: &Path,
     scene: &Scene,
     measured: &[f32],
-    render: &[f32],
-    intensity: &Intensity,
+    fitted: &[f32],
 ) -> Result<PathBuf> {
     let bins = scene.film.temporal_bins as usize;
     let (nx, ny) = (scene.scan.nx as usize, scene.scan.ny as usize);
@@ -558,23 +619,17 @@ fn write_transients(
     let span = last + 1 - first;
     let k = span.div_ceil(140).max(1);
     let cols = span / k;
-    let streak = |data: &[f32], s: f32, background: &dyn Fn(usize) -> f32| -> Vec<f32> {
+    let streak = |data: &[f32]| -> Vec<f32> {
         let mut img = vec![0.0f32; nx * cols];
         for ix in 0..nx {
             let row = &data[(row0 + ix) * bins + first..(row0 + ix + 1) * bins];
             for c in 0..cols {
-                let b: f32 = (c * k..(c + 1) * k).map(|t| background(first + t)).sum();
-                img[ix * cols + c] = s * row[c * k..(c + 1) * k].iter().sum::<f32>() + b;
+                img[ix * cols + c] = row[c * k..(c + 1) * k].iter().sum::<f32>();
             }
         }
         img
     };
-    let (m, f) = (
-        streak(measured, 1.0, &|_| 0.0),
-        streak(render, intensity.scale as f32, &|t| {
-            intensity.background_at(t) as f32
-        }),
-    );
+    let (m, f) = (streak(measured), streak(fitted));
     let d: Vec<f32> = m.iter().zip(&f).map(|(a, b)| (a - b).abs()).collect();
     let path = out.join("transients.png");
     let opl = |b: usize| scene.film.start_opl + b as f32 * scene.film.bin_width_opl;

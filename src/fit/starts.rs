@@ -127,7 +127,7 @@ pub fn fit_starts(
         .map(|(name, r)| StartSummary {
             init: name.to_string(),
             final_loss: r.final_loss,
-            relative_l2: r.final_loss.sqrt(),
+            relative_l2: r.relative_l2,
             seconds: r.seconds,
         })
         .collect();

@@ -331,6 +331,7 @@ pub fn objective(
         jitter_opl: 0.0,
         time_offset_max_opl: 0.0,
         irf: None,
+        capture: None,
     }
 }
 

@@ -54,20 +54,28 @@ pub struct FitArgs {
     pub known_scale: bool,
     /// Background fitted with the scale: `none` (default for the demonstration target,
     /// which has none), `constant` (dark counts, ambient light; default with
-    /// `--measured`) or `per-bin` (one value per time bin shared by all scan points:
-    /// also the direct light's tail; default for LCT `.mat` captures). `true` and
-    /// `false` mean `constant` and `none`.
+    /// `--measured`), `per-bin` (one value per time bin shared by all scan points) or
+    /// `per-point` (default for LCT `.mat` captures: the capture model calibrated from
+    /// the data, a floor smooth over the scan plus the direct return's tail scaled by
+    /// each point's direct counts, a gain field, and the detector response calibrated as
+    /// a core with tails; docs/FITTING.md). `true` and `false` mean `constant` and `none`.
     #[arg(long)]
     pub background: Option<umbra::fit::Background>,
+    /// The loss: `poisson` (the deviance of photon counts; default for counts with
+    /// `--background per-point`) or `l2` (relative squared error; default otherwise).
+    #[arg(long)]
+    pub likelihood: Option<String>,
     /// Detector timing jitter: blur the render along time with a Gaussian of this
     /// standard deviation (OPL, m) before comparing it with the measurement. Default 0
     /// (the scene's film kernel only). Needs `--irf none` where an IRF is the default.
     #[arg(long)]
     pub jitter: Option<f64>,
     /// The detector's impulse response the render is convolved with, instead of the
-    /// `--jitter` Gaussian: `none`, `direct` (estimated from the measurement's own
-    /// direct return, the bins before `--ignore-before`; default for LCT `.mat`
-    /// captures) or a `.npy` file of taps at the measurement's bin width, lag 0 first.
+    /// `--jitter` Gaussian: `none`, `calibrate` (a Gaussian core with exponential tails,
+    /// calibrated from the capture at each stage; default with `--background
+    /// per-point`, and only with it), `direct` (estimated from the measurement's own
+    /// direct return, the bins before `--ignore-before`) or a `.npy` file of taps at the
+    /// measurement's bin width, lag 0 first.
     #[arg(long)]
     pub irf: Option<String>,
     /// Fit an unknown time offset of the measurement, searched within +- this (OPL, m):
@@ -165,6 +173,7 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
         spp: args.spp,
         known_scale: args.known_scale,
         background: args.background,
+        likelihood: args.likelihood.clone(),
         jitter: args.jitter,
         irf: args.irf.clone(),
         time_offset: args.time_offset,
@@ -234,12 +243,32 @@ pub fn fit(args: FitArgs, scene: Scene) -> Result<()> {
             "umbra fit: the measurement is photon counts: Poisson noise alone gives a relative L2 of {floor:.3} at this resolution"
         );
     }
+    if let Some(d) = summary.deviance_per_bin {
+        let held = summary.held_out_loss.map_or(String::new(), |h| {
+            format!(", {h:.3} at the held-out scan points")
+        });
+        println!("umbra fit: Poisson deviance {d:.3} per fitted bin (a perfect model of the counts: about 1){held}");
+    }
+    if let Some(r) = &summary.response {
+        let tails: Vec<String> = r
+            .tail_weights
+            .iter()
+            .zip(&r.tail_tau_ps)
+            .map(|(w, t)| format!("{:.0} % at {t:.0} ps", 100.0 * w))
+            .collect();
+        println!(
+            "umbra fit: detector response calibrated from the capture: core σ {:.1} ps, t0 {:.1} ps, tails [{}]",
+            r.sigma_ps,
+            r.t0_ps,
+            tails.join(", ")
+        );
+    }
     println!(
         "umbra fit: {} iterations in {:.1} s (this run), final loss {:.4e} (relative L2 {:.3}, scale {:.4e}, background {:.4e}), {} vertices / {} faces{} -> {}",
         report.history.len(),
         report.seconds,
         report.final_loss,
-        report.final_loss.sqrt(),
+        report.relative_l2,
         report.intensity.scale,
         report.intensity.background,
         report.mesh.vertices.len(),

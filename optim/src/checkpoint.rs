@@ -365,6 +365,8 @@ pub struct LossRecord {
     /// Total cost (data + regularisation).
     pub cost: f64,
     pub data_loss: f64,
+    /// The regularisation: the Laplacian smoothness term plus the albedo's total
+    /// variation ([`crate::problem::Breakdown`] has them apart).
     pub smoothness: f64,
     /// The objective's report (e.g. the intensity scale).
     pub report: Vec<(String, f64)>,

@@ -13,7 +13,9 @@ pub mod lock;
 pub mod mesh;
 pub mod problem;
 pub mod remesh;
+pub mod schedule;
 pub mod step;
+pub mod tv;
 
 pub use adam::Adam;
 pub use fit::{fit, FitError, FitOutcome, ObjectiveFactory, Schedule, SolverKind, Stage};

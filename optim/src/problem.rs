@@ -2,19 +2,26 @@
 //! (`u = (I + λL) x` the large-steps coordinates of the vertex positions `x`, one block
 //! per axis; `a` the per-vertex values, present when they are fitted) and the cost
 //!
-//! `C(θ) = loss(x, clamp(κ a', 0, 1)) + w ‖L x‖² / (V h²)`, `a'` the values over `κ`
+//! `C(θ) = loss(x, a) + w ‖L x‖² / (V h²) + w_tv TV(a)`,   `a = clamp(κ a', 0, 1)`
 //!
-//! with `loss` from the renderer ([`MeshObjective`]) and the smoothness term of
-//! [`crate::laplacian`]. The gradient maps back through the parameterisation:
-//! `∂C/∂u = (I + λL)⁻¹ ∂C/∂x`, and `∂C/∂a' = κ ∂loss/∂a` inside `[0, 1]` (0 outside,
-//! where the clamp holds; [`Project`] keeps the solvers' iterates inside). Cost and gradient are separate calls in argmin; one render serves
-//! both (the last evaluation is cached by its exact parameter vector).
+//! (`a'` the values over `κ`) with `loss` from the renderer ([`MeshObjective`]), the
+//! smoothness term of [`crate::laplacian`] and the edge-preserving total variation of
+//! the values actually used, after the clamp, of [`crate::tv`]
+//! (`TV(a) = Σ_e ℓ_e φ(a_i − a_j) / √A`, Charbonnier `φ`; only when the values are
+//! fitted). TV's edge lengths `ℓ_e` and area `A` are the stage's template's, fixed for
+//! the stage: TV has no position gradient, and a step edge of a given length costs the
+//! same at any mesh resolution. The gradient maps back through the parameterisation:
+//! `∂C/∂u = (I + λL)⁻¹ ∂C/∂x`, and `∂C/∂a' = κ (∂loss/∂a + w_tv ∂TV/∂a)` inside
+//! `[0, 1]` (0 outside, where the clamp holds; [`Project`] keeps the solvers' iterates
+//! inside). Cost and gradient are separate calls in argmin; one render serves both (the
+//! last evaluation is cached by its exact parameter vector).
 //!
 //! Deterministic: the CG solves start from fixed guesses (not the previous solution), so
 //! the same `θ` gives the same mesh whatever came before it, which resuming relies on.
 
 use crate::laplacian::{join_axes, mean_edge, smoothness, split_axes, Laplacian};
 use crate::mesh::Mesh;
+use crate::tv::TotalVariation;
 use argmin::core::{CostFunction, Error, Gradient};
 use std::cell::RefCell;
 use std::rc::Rc;
@@ -78,13 +85,19 @@ pub struct ProblemSettings {
     /// `κ`: the values enter `θ` as `a / κ`, so an optimiser step of size `η` in `θ`
     /// moves them by `κ η` (albedo wants larger steps than positions in metres).
     pub value_scale: f64,
+    /// Weight `w_tv` of the total variation of the values ([`crate::tv`]); used only
+    /// when `fit_values` (fixed values add a constant). 0: off.
+    pub value_tv: f64,
 }
 
 /// The last evaluation, for observers.
 #[derive(Clone, Debug, Default)]
 pub struct Breakdown {
     pub data_loss: f64,
+    /// `w ‖L x‖² / (V h²)`.
     pub smoothness: f64,
+    /// `w_tv TV(a)` (0 when off).
+    pub value_tv: f64,
     pub report: Vec<(String, f64)>,
 }
 
@@ -102,6 +115,8 @@ pub struct MeshProblem {
     settings: ProblemSettings,
     /// Reference edge length `h` of the smoothness term (the stage's initial mean edge).
     h: f64,
+    /// The TV term, when the values are fitted with `value_tv > 0`.
+    tv: Option<TotalVariation>,
     cache: RefCell<Option<Cache>>,
     last: Rc<RefCell<Breakdown>>,
     /// Where vertices may go ([`MeshObjective::bounds`] grown to the template's box,
@@ -137,6 +152,7 @@ impl MeshProblem {
             objective: RefCell::new(objective),
             lap: Laplacian::new(mesh),
             h: mean_edge(mesh).max(1e-9),
+            tv: (settings.fit_values && settings.value_tv > 0.0).then(|| TotalVariation::new(mesh)),
             template,
             settings,
             cache: RefCell::new(None),
@@ -282,6 +298,18 @@ impl MeshProblem {
         } else {
             0.0
         };
+        let mut da = eval.d_values.clone();
+        let tv = match &self.tv {
+            Some(tv) => {
+                let mut g = vec![0.0; n];
+                let r = tv.evaluate(&mesh.vertex_values, &mut g);
+                for (d, g) in da.iter_mut().zip(&g) {
+                    *d += self.settings.value_tv * g;
+                }
+                self.settings.value_tv * r
+            }
+            None => 0.0,
+        };
         let mut grad = Vec::with_capacity(theta.len());
         let axes = split_axes(&dx);
         let positions = if self.settings.fit_positions {
@@ -300,11 +328,11 @@ impl MeshProblem {
             grad.extend(du);
         }
         if self.settings.fit_values {
-            // a = clamp(κ a', 0, 1): ∂C/∂a' = κ ∂loss/∂a inside [0, 1], 0 where the
+            // a = clamp(κ a', 0, 1): ∂C/∂a' = κ ∂C/∂a inside [0, 1], 0 where the
             // clamp holds (the solvers keep a' inside by `project`).
             let k = self.value_scale();
             let a = &theta[self.values_at()..];
-            grad.extend(eval.d_values.iter().zip(a).map(|(&d, &a)| {
+            grad.extend(da.iter().zip(a).map(|(&d, &a)| {
                 if (0.0..=1.0).contains(&(k * a)) {
                     k * d
                 } else {
@@ -315,10 +343,11 @@ impl MeshProblem {
         if grad.iter().any(|g| !g.is_finite()) {
             return Err("the gradient is not finite".into());
         }
-        let cost = eval.loss + smooth;
+        let cost = eval.loss + smooth + tv;
         *self.last.borrow_mut() = Breakdown {
             data_loss: eval.loss,
             smoothness: smooth,
+            value_tv: tv,
             report: eval.report,
         };
         *self.cache.borrow_mut() = Some(Cache {

@@ -279,6 +279,14 @@ fn schedules_that_mean_nothing_are_refused_before_running() {
             "stage 0: large_steps = -5 must be finite and >= 0",
         ),
         (
+            with(&|s| s.albedo_tv = -0.1),
+            "stage 0: albedo_tv = -0.1 must be finite and >= 0",
+        ),
+        (
+            with(&|s| s.albedo_tv = f64::INFINITY),
+            "stage 0: albedo_tv = inf must be finite and >= 0",
+        ),
+        (
             with(&|s| s.time_downsample = 0),
             "stage 0: time_downsample = 0",
         ),
@@ -312,4 +320,35 @@ fn schedules_that_mean_nothing_are_refused_before_running() {
     lbfgs.stages[0].lr = 0.0;
     assert!(lbfgs.check().is_ok());
     let _ = std::fs::remove_dir_all(&d);
+}
+
+/// The schedule's identity hash (postcard of the `Schedule`) of a schedule that sets no
+/// field added since checkpoint format 2 is the one format 2 wrote, so a fit checkpointed
+/// by an earlier build still resumes. A new `Stage` field must keep this (serialize
+/// nothing at its default: `skip_serializing_if`), or raise `FORMAT_VERSION`.
+#[test]
+fn a_schedule_without_new_fields_hashes_as_format_2_did() {
+    let stage = |iters, solver, lr| Stage {
+        large_steps: 2.0,
+        laplacian: 0.5,
+        fit_albedo: true,
+        remesh_factor: Some(0.4),
+        time_downsample: 4,
+        model: Some("tri3".into()),
+        spp: Some(16),
+        ..Stage::new(iters, solver, lr)
+    };
+    let s = Schedule {
+        stages: vec![
+            stage(100, SolverKind::Adam, 0.03),
+            stage(20, SolverKind::Lbfgs, 0.0),
+        ],
+        checkpoint_every: 5,
+    };
+    // Computed by the build before `albedo_tv` (commit 4568e57).
+    assert_eq!(optim::checkpoint::hash_postcard(&s), 0xbce7_0ba2_e00a_6081);
+    // A schedule that uses a new field hashes differently (another schedule).
+    let mut tv = s.clone();
+    tv.stages[1].albedo_tv = 0.01;
+    assert_ne!(optim::checkpoint::hash_postcard(&tv), 0xbce7_0ba2_e00a_6081);
 }

@@ -64,6 +64,7 @@ fn check_gradient(fit_positions: bool) {
             fit_positions,
             fit_values: true,
             value_scale: 10.0,
+            value_tv: 0.0,
         },
     );
     let theta = problem.encode(&mesh);
@@ -104,6 +105,7 @@ fn projection_clamps_the_albedo_block_only() {
             fit_positions: true,
             fit_values: true,
             value_scale: 10.0,
+            value_tv: 0.0,
         },
     );
     let mut theta = problem.encode(&mesh);
@@ -151,6 +153,7 @@ fn a_mesh_on_its_box_decodes_after_the_large_steps_round_trip() {
             fit_positions: true,
             fit_values: false,
             value_scale: 1.0,
+            value_tv: 0.0,
         },
     );
     let decoded = problem.decode(&problem.encode(&mesh)).unwrap();

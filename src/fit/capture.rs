@@ -60,6 +60,42 @@ pub struct CaptureModel {
     pub bin_width: f64,
 }
 
+/// One response model the calibration tried.
+#[derive(Clone, Debug)]
+pub struct Candidate {
+    pub response: Response,
+    /// The loss at the points in the fit, and at the held-out ones (NaN: none).
+    pub loss: f64,
+    pub held_out: f64,
+    /// Whether the calibration kept it.
+    pub kept: bool,
+}
+
+impl Candidate {
+    /// A CSV row: tails, loss, held-out loss, σ and t0 (ps), then weight and τ (ps) per
+    /// tail up to [`MAX_CALIBRATED_TAILS`], kept (0/1).
+    pub fn csv_row(&self) -> String {
+        let ps = |opl: f64| opl / 2.997_924_58e-4;
+        let r = &self.response;
+        let mut row = format!(
+            "{},{:e},{:e},{:.3},{:.3}",
+            r.tails.len(),
+            self.loss,
+            self.held_out,
+            ps(r.sigma),
+            ps(r.t0)
+        );
+        for i in 0..MAX_CALIBRATED_TAILS {
+            match r.tails.get(i) {
+                Some(&(w, tau)) => row.push_str(&format!(",{w:.4},{:.3}", ps(tau))),
+                None => row.push_str(",,"),
+            }
+        }
+        row.push_str(if self.kept { ",1" } else { ",0" });
+        row
+    }
+}
+
 /// One comparison of a render with the measurement.
 #[derive(Clone, Debug)]
 pub struct CaptureComparison {
@@ -74,6 +110,8 @@ pub struct CaptureComparison {
     pub fit: LinearFit,
     /// The loss at the held-out points (NaN when none are held out).
     pub held_out: f64,
+    /// Each held-out point's share of it (squared residual or deviance over its bins).
+    pub held_out_points: Vec<f64>,
 }
 
 impl CaptureModel {
@@ -116,7 +154,7 @@ impl CaptureModel {
             self.likelihood,
         );
         let held: Vec<bool> = self.in_fit.iter().map(|&b| !b).collect();
-        let held_out = if held.iter().any(|&b| b) {
+        let (held_out, held_out_points) = if held.iter().any(|&b| b) {
             held_out_loss(
                 &self.design,
                 &fit,
@@ -126,7 +164,7 @@ impl CaptureModel {
                 self.likelihood,
             )
         } else {
-            f64::NAN
+            (f64::NAN, Vec::new())
         };
         let model = blurred
             .chunks_exact(self.bins)
@@ -149,6 +187,7 @@ impl CaptureModel {
             model,
             fit,
             held_out,
+            held_out_points,
         }
     }
 
@@ -166,34 +205,40 @@ impl CaptureModel {
 
     /// Calibrates the response on `raw` (the stage's start mesh rendered): for each number
     /// of tails up to [`MAX_CALIBRATED_TAILS`], projected gradient descent from the
-    /// prior's parameters; keeps the one of the lowest held-out loss (the lowest
-    /// in-sample loss when no point is held out). Returns each candidate's
-    /// `(tails, in-sample loss, held-out loss)`.
-    pub fn calibrate(
-        &mut self,
-        raw: &[f32],
-        measured: &[f32],
-        prior: &Response,
-    ) -> Vec<(usize, f64, f64)> {
+    /// prior's parameters; a model with more tails replaces the kept one only when its
+    /// held-out loss is lower by more than twice the standard error of the per-point
+    /// differences (the lowest in-sample loss when no point is held out). Returns each candidate's
+    /// calibrated response and losses.
+    pub fn calibrate(&mut self, raw: &[f32], measured: &[f32], prior: &Response) -> Vec<Candidate> {
         let mut tried = Vec::new();
-        let mut best: Option<(f64, Response)> = None;
+        let mut best: Option<(CaptureComparison, Response)> = None;
         for tails in 0..=MAX_CALIBRATED_TAILS.min(prior.tails.len()) {
             let start = Response {
                 tails: prior.tails[..tails].to_vec(),
                 ..prior.clone()
             };
             let (response, c) = self.descend(raw, measured, start);
-            let score = if c.held_out.is_nan() {
-                c.loss
-            } else {
-                c.held_out
-            };
-            tried.push((tails, c.loss, c.held_out));
-            if best.as_ref().is_none_or(|(s, _)| score < *s) {
-                best = Some((score, response));
+            tried.push(Candidate {
+                response: response.clone(),
+                loss: c.loss,
+                held_out: c.held_out,
+                kept: false,
+            });
+            let better = best.as_ref().is_none_or(|(b, _)| {
+                if c.held_out_points.is_empty() {
+                    c.loss < b.loss
+                } else {
+                    clearly_better(&b.held_out_points, &c.held_out_points)
+                }
+            });
+            if better {
+                best = Some((c, response));
             }
         }
         if let Some((_, r)) = best {
+            tried
+                .iter_mut()
+                .for_each(|c| c.kept = c.response.tails.len() == r.tails.len());
             self.response = r;
         }
         tried
@@ -271,8 +316,11 @@ impl CaptureModel {
     }
 }
 
-/// The loss of `fit` at the points of `win` (the held-out ones), without refitting.
-/// (A held-out Poisson mean below a tenth of a count is taken as that.)
+/// The loss of `fit` at the points of `win` (the held-out ones), without refitting, and
+/// each of those points' share (its squared residual, or its deviance, summed over its
+/// bins). A held-out Poisson mean below a tenth of a count is taken as that: the fit
+/// keeps `μ > 0` at the points it fits only, and a gain or floor extrapolated negative
+/// elsewhere is scored heavily but finitely, so candidates still rank.
 fn held_out_loss(
     design: &PointBackground,
     fit: &LinearFit,
@@ -280,8 +328,9 @@ fn held_out_loss(
     measured: &[f32],
     win: &Window,
     likelihood: Likelihood,
-) -> f64 {
-    let (mut sum, mut norm, mut n) = (0.0, 0.0, 0usize);
+) -> (f64, Vec<f64>) {
+    let (mut norm, mut n) = (0.0, 0usize);
+    let mut points = Vec::new();
     for (p, (h, m)) in blurred
         .chunks_exact(win.bins)
         .zip(measured.chunks_exact(win.bins))
@@ -290,6 +339,7 @@ fn held_out_loss(
         if !win.in_fit.get(p).copied().unwrap_or(true) {
             continue;
         }
+        let mut sum = 0.0;
         for t in win.first..win.bins {
             let mu = linear_fit::model(design, &fit.beta, p, t, f64::from(h[t]));
             let m = f64::from(m[t]);
@@ -300,21 +350,35 @@ fn held_out_loss(
                     norm += m * m;
                 }
                 Likelihood::Poisson { counts_per_value } => {
-                    // The fit keeps μ > 0 at the points it fits only: a held-out mean at
-                    // or below zero (a gain or floor extrapolated negative) is scored at
-                    // a tenth of a count, heavily but finitely, so candidates still rank.
                     let mu = mu.max(0.1 / counts_per_value);
                     let log = if m > 0.0 { m * (m / mu).ln() } else { 0.0 };
                     sum += 2.0 * counts_per_value * (mu - m + log);
                 }
             }
         }
+        points.push(sum);
     }
-    match likelihood {
-        Likelihood::L2 if norm > 0.0 => sum / norm,
+    let total: f64 = points.iter().sum();
+    let loss = match likelihood {
+        Likelihood::L2 if norm > 0.0 => total / norm,
         Likelihood::L2 => 0.0,
-        Likelihood::Poisson { .. } => sum / n.max(1) as f64,
+        Likelihood::Poisson { .. } => total / n.max(1) as f64,
+    };
+    (loss, points)
+}
+
+/// Whether the per-point held-out losses `b` beat `a` (the simpler model's) by more than
+/// twice the standard error of their paired differences: a richer model must earn its
+/// parameters on data it was not fitted to, by more than its noise.
+fn clearly_better(a: &[f64], b: &[f64]) -> bool {
+    let n = a.len().min(b.len());
+    if n < 2 {
+        return b.iter().sum::<f64>() < a.iter().sum::<f64>();
     }
+    let d: Vec<f64> = a.iter().zip(b).map(|(a, b)| a - b).collect();
+    let mean = d.iter().sum::<f64>() / n as f64;
+    let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+    mean > 2.0 * (var / n as f64).sqrt()
 }
 
 /// The calibration's coordinates: `ln σ`, `t0 / 1 cm`, then per tail `w_i` and `ln τ_i`,
@@ -637,8 +701,12 @@ mod tests {
     fn calibration_recovers_the_response_and_held_out_points_pick_its_tails() {
         let raw = raw();
         let measured = counts(&model(truth(), POISSON, 0), &raw);
-        let mut m = model(crate::fit::capture::stanford_prior(), POISSON, 6);
-        let tried = m.calibrate(&raw, &measured, &stanford_prior());
+        let mut m = model(crate::fit::capture::stanford_prior(), POISSON, 2);
+        let tried: Vec<(usize, f64, f64)> = m
+            .calibrate(&raw, &measured, &stanford_prior())
+            .iter()
+            .map(|c| (c.response.tails.len(), c.loss, c.held_out))
+            .collect();
         let r = &m.response;
         assert_eq!(r.tails.len(), 1, "{tried:?} {r:?}");
         let t = truth();
@@ -649,8 +717,8 @@ mod tests {
             "{r:?}"
         );
         // Without a tail the held-out deviance is clearly worse (the choice means
-        // something); two tails gain nothing held out.
+        // something); a second tail's held-out gain (0.001 a bin) is within the noise, so
+        // the simpler model stays (by the lowest held-out loss alone it would win).
         assert!(tried[0].2 > tried[1].2 + 0.03, "{tried:?}");
-        assert!(tried[2].2 >= tried[1].2, "{tried:?}");
     }
 }

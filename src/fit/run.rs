@@ -168,6 +168,8 @@ struct Factory<'a> {
     scene: &'a Scene,
     measured: &'a [f32],
     cfg: &'a FitConfig,
+    /// `calibration.csv`'s rows: every response model tried, per stage built.
+    calibrations: std::cell::RefCell<Vec<String>>,
 }
 
 impl Factory<'_> {
@@ -222,7 +224,14 @@ impl Factory<'_> {
         if let (Some(options), Some(mut capture)) = (&self.cfg.capture, objective.capture.take()) {
             if options.calibrates_at(capture.bin_width) {
                 let (_, _, _, raw) = objective.raw(start)?;
-                capture.calibrate(&raw, &objective.measured, &options.prior);
+                let label = format!(
+                    "{},{},{}",
+                    stage.time_downsample, stage.scan_downsample, capture.bin_width
+                );
+                let tried = capture.calibrate(&raw, &objective.measured, &options.prior);
+                self.calibrations
+                    .borrow_mut()
+                    .extend(tried.iter().map(|c| format!("{label},{}", c.csv_row())));
             }
             objective.capture = Some(capture);
         }
@@ -390,6 +399,7 @@ pub fn fit(
         scene: &base,
         measured,
         cfg,
+        calibrations: Default::default(),
     };
     let dir = out.join("checkpoint");
     let outcome = optim::fit(
@@ -472,6 +482,17 @@ pub fn fit(
         files.push(path);
     }
     files.extend(write_loss(out, &outcome.history)?);
+    if cfg.capture.is_some() {
+        let path = out.join("calibration.csv");
+        let mut csv = String::from("time_downsample,scan_downsample,bin_width_m,tails,loss,held_out_loss,sigma_ps,t0_ps,w1,tau1_ps,w2,tau2_ps,kept\n");
+        factory
+            .calibrations
+            .borrow()
+            .iter()
+            .for_each(|r| csv.push_str(&format!("{r}\n")));
+        write_atomic(&path, csv.as_bytes()).map_err(|e| Error::io(&path, e))?;
+        files.push(path);
+    }
     files.push(write_transients(out, &base, measured, &rendered.model)?);
     // The picture is a by-product: the fit's results must not be lost over it.
     let picture = out.join("reconstruction.png");

@@ -434,12 +434,12 @@ pub fn fit(
         write_atomic(&path, mesh.to_obj().as_bytes()).map_err(|e| Error::io(&path, e))?;
         files.push(path);
     }
-    files.extend(write_loss(out, &outcome.history)?);
-    files.push(write_transients(out, &base, measured, &render, &intensity)?);
     // The fitted surface seen from the wall: albedo.npy, depth.npy, albedo.png.
     let seen = seen_surface(&base, &outcome.mesh, cfg.albedo);
     files.extend(write_seen(out, &base, &seen)?);
-    // The pictures are by-products: the fit's results must not be lost over them.
+    files.extend(write_loss(out, &outcome.history)?);
+    files.push(write_transients(out, &base, measured, &render, &intensity)?);
+    // The picture is a by-product: the fit's results must not be lost over it.
     let picture = out.join("reconstruction.png");
     match write_reconstruction_png(&picture, &base, measured, first, &seen) {
         Ok(()) => files.push(picture),

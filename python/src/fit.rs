@@ -262,6 +262,18 @@ pub fn fit<'py>(
         .map(|p| p.display().to_string())
         .collect();
     d.set_item("files", files)?;
+    // The fitted surface seen from the wall (albedo.npy, depth.npy): (ny, nx) per scan
+    // point, NaN where no surface.
+    let seen = &report.seen;
+    for (name, values) in [("albedo", &seen.albedo), ("depth", &seen.depth)] {
+        d.set_item(
+            name,
+            values
+                .clone()
+                .into_pyarray(py)
+                .reshape([seen.ny, seen.nx])?,
+        )?;
+    }
     d.set_item(
         "render",
         report.render.into_pyarray(py).reshape(shape.clone())?,

@@ -169,7 +169,8 @@ def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
     (``iters``, ``solver``, ``lr``, ``large_steps``, ``laplacian``, ``fit_albedo``,
     ``time_downsample``, ``scan_downsample``, ``model``, ``spp``, ...); ``iters`` scales
     its stages to that total. ``output``: a directory for mesh.obj, loss.csv/png,
-    transients.png, reconstruction.png, summary.toml and the checkpoint (default: a
+    transients.png, albedo.npy, depth.npy, albedo.png, reconstruction.png, summary.toml
+    and the checkpoint (default: a
     temporary directory, removed afterwards). ``progress(d)`` is called after every
     iteration with ``d = {"iteration", "stage", "loss", "data_loss", "smoothness"}``; an
     exception it raises stops the fit and propagates. Ctrl-C stops it at the end of the
@@ -194,7 +195,11 @@ def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
     (total), ``data_loss``, ``smoothness``); ``final_loss`` (``‖sH + b − M‖² / ‖M‖²`` at
     full resolution) and ``relative_l2``; ``scale``, ``background``, ``time_offset``;
     ``render`` (the fitted transient ``sH + b``, float32, the measurement's layout) and
-    ``measured`` (the measurement as fitted); ``chamfer`` (mm, with a truth) or None;
+    ``measured`` (the measurement as fitted); ``albedo`` and ``depth`` (ny, nx) float32,
+    the fitted surface seen from the wall as albedo.npy and depth.npy: for each scan
+    point ``[iy, ix]`` (the measurement's scan order, ``measured[iy, ix]``), the albedo
+    and the depth from the wall (m) of the first face along the wall normal, NaN where
+    there is none; ``chamfer`` (mm, with a truth) or None;
     ``photon_noise_floor``; ``rejected_steps``; ``seconds``; ``files``; ``init`` (the
     start used, ``auto: NAME`` for ``auto``) and ``starts`` (``auto``:
     each start's final loss)."""

@@ -6,8 +6,9 @@
 //! - [`time_offset`]: the comparison through the detector's jitter and an unknown
 //!   time offset;
 //! - [`resolution`]: the coarse-to-fine schedule's downsampled measurement and scene;
-//! - [`reconstruction`]: the backprojection initial mesh and the picture of the fit
-//!   next to a backprojection;
+//! - [`reconstruction`]: the backprojection and LCT initial meshes and the picture of
+//!   the fit next to the LCT (or a backprojection);
+//! - [`seen`]: the fitted surface seen from the wall (albedo and depth per scan point);
 //! - [`init`]: initial meshes (a plane or a sphere in front of the wall at the depth the
 //!   data's first returns imply);
 //! - [`request`]: a fit as the CLI and Python ask for it (measurement, defaults,
@@ -35,6 +36,7 @@ pub mod request;
 pub mod resolution;
 pub mod run;
 pub mod score;
+pub mod seen;
 pub mod starts;
 pub mod support;
 pub mod time_offset;

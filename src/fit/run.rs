@@ -7,9 +7,12 @@
 //!   `mesh_all.obj` with every face and its albedo as vertex colour;
 //! - `loss.csv` and `loss.png`: the loss per iteration (data term and total), stage
 //!   boundaries marked;
-//! - `reconstruction.png`: a filtered backprojection of the measurement (front
-//!   projection and depth map) next to the fitted surface's albedo and depth map
-//!   (`reconstruction` module doc; a failure to draw it is a warning, not an error);
+//! - `albedo.npy`, `depth.npy`: the fitted surface seen from the wall ([`super::seen`]):
+//!   per scan point (float32 `(ny, nx)`, `[iy, ix]` in the measurement's scan order) the
+//!   albedo and depth (m) of the first face along the wall normal, NaN where none;
+//!   `albedo.png` that albedo seen from the wall; `reconstruction.png` the fitted albedo
+//!   and depth next to Umbra's LCT of the measurement (a filtered backprojection if not
+//!   confocal; `reconstruction` module doc); a failure to draw a picture is a warning;
 //! - `transients.png`: measured and fitted transients side by side (streak images of
 //!   the middle scan row, the fitted one times the fitted scale), and their difference;
 //! - `checkpoint/`: the resumable state (see `optim::fit`), stamped with the fit's
@@ -23,6 +26,7 @@ use super::intensity::{Intensity, IntensityModel};
 use super::objective::{first_fitted_bin, hidden_object, zero_leading_bins, UmbraObjective};
 use super::reconstruction::{backprojection_mesh, write_reconstruction_png};
 use super::resolution::{at_resolution, ScanReduce};
+use super::seen::{seen_surface, write_seen, SeenSurface};
 use super::support::supported_faces;
 use crate::error::{Error, Result};
 use crate::geometry::accel::SceneGeometry;
@@ -135,6 +139,8 @@ pub struct FitReport {
     /// detector response and background applied; bins left out of the fit are zero), in
     /// the measurement's layout.
     pub render: Vec<f32>,
+    /// The fitted surface seen from the wall (`albedo.npy`, `depth.npy`; [`super::seen`]).
+    pub seen: SeenSurface,
     pub files: Vec<PathBuf>,
 }
 
@@ -481,6 +487,9 @@ pub fn fit(
         write_atomic(&path, mesh.to_obj().as_bytes()).map_err(|e| Error::io(&path, e))?;
         files.push(path);
     }
+    // The fitted surface seen from the wall: albedo.npy, depth.npy, albedo.png.
+    let seen = seen_surface(&base, &outcome.mesh, cfg.albedo);
+    files.extend(write_seen(out, &base, &seen)?);
     files.extend(write_loss(out, &outcome.history)?);
     if cfg.capture.is_some() {
         let path = out.join("calibration.csv");
@@ -496,7 +505,7 @@ pub fn fit(
     files.push(write_transients(out, &base, measured, &rendered.model)?);
     // The picture is a by-product: the fit's results must not be lost over it.
     let picture = out.join("reconstruction.png");
-    match write_reconstruction_png(&picture, &base, measured, first, &outcome.mesh) {
+    match write_reconstruction_png(&picture, &base, measured, first, &seen) {
         Ok(()) => files.push(picture),
         Err(e) => eprintln!("umbra fit: warning: {} not written: {e}", picture.display()),
     }
@@ -524,6 +533,7 @@ pub fn fit(
         unsupported_faces,
         undetermined_faces,
         face_determination,
+        seen,
         files,
     })
 }

@@ -2,6 +2,7 @@
 
 pub mod exr_out;
 pub mod lct;
+pub mod maps;
 pub mod mat_layout;
 pub mod measured;
 mod npy_header;

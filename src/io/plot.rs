@@ -1,6 +1,6 @@
 //! PNG charts (plotters, bitmap backend, an embedded DejaVu Sans Mono so no system font
 //! library is needed): the loss curve of a fit, and measured and fitted transients side
-//! by side.
+//! by side; labelled maps with axes and colour bars are in [`super::maps`].
 
 use crate::error::{Error, Result};
 use crate::io::preview::inferno;
@@ -8,6 +8,8 @@ use plotters::prelude::*;
 use plotters::style::FontStyle;
 use std::path::Path;
 use std::sync::Once;
+
+pub use super::maps::{labelled_maps, MapAxes, MapPanel};
 
 const FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSansMono.ttf");
 pub(crate) const FAMILY: &str = "sans-serif";
@@ -50,7 +52,7 @@ where
         .map_err(|e| err(path, e))
 }
 
-fn err(path: &Path, e: impl std::fmt::Display) -> Error {
+pub(crate) fn err(path: &Path, e: impl std::fmt::Display) -> Error {
     Error::Invalid(format!("{}: cannot draw the chart: {e}", path.display()))
 }
 
@@ -373,110 +375,6 @@ pub fn loglog_panel_chart(
         if !shared {
             legend(&mut chart, path, SeriesLabelPosition::LowerLeft, 11)?;
         }
-    }
-    root.present().map_err(|e| err(path, e))?;
-    Ok(())
-}
-
-/// One labelled image of [`labelled_maps`]: `values` row-major, top row first, NaN for
-/// "nothing here" (drawn black); the colour map spans `range` (`lo` dark, `hi` bright),
-/// explained under the image by a colour bar from `lo` to `hi` with `unit`.
-pub struct MapPanel<'a> {
-    /// What the panel shows (lines separated by `\n`).
-    pub title: &'a str,
-    pub width: usize,
-    pub height: usize,
-    pub values: &'a [f32],
-    pub range: (f32, f32),
-    /// The colour bar's caption, e.g. "depth from the wall (m)".
-    pub unit: &'a str,
-}
-
-/// Images side by side, each with its title above and a labelled colour bar below;
-/// `title` heads the picture and `footer` (e.g. the orientation) ends it.
-pub fn labelled_maps(path: &Path, title: &str, panels: &[MapPanel], footer: &str) -> Result<()> {
-    register_font();
-    const SIDE: usize = 256;
-    const GAP: i32 = 24;
-    const TOP: i32 = 84;
-    for p in panels {
-        if p.values.len() != p.width * p.height || p.width == 0 || p.height == 0 {
-            return Err(err(
-                path,
-                format!(
-                    "a panel of {} values is not {} x {}",
-                    p.values.len(),
-                    p.width,
-                    p.height
-                ),
-            ));
-        }
-    }
-    let zoom = |p: &MapPanel| (SIDE / p.width.max(p.height)).max(1);
-    let image_h = panels.iter().map(|p| p.height * zoom(p)).max().unwrap_or(1) as i32;
-    let total_w: i32 = panels
-        .iter()
-        .map(|p| (p.width * zoom(p)).max(SIDE) as i32 + GAP)
-        .sum::<i32>()
-        + GAP;
-    let (w, h) = (total_w.max(400) as u32, (TOP + image_h + 110) as u32);
-    let root = BitMapBackend::new(path, (w, h)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(path, e))?;
-    let text = |t: &str, x: i32, y: i32, size: u32| {
-        root.draw(&Text::new(t.to_string(), (x, y), (FAMILY, size)))
-            .map_err(|e| err(path, e))
-    };
-    text(title, GAP, 8, 16)?;
-    let mut x = GAP;
-    for p in panels {
-        let k = zoom(p);
-        for (i, line) in p.title.lines().enumerate() {
-            text(line, x, 36 + 16 * i as i32, 13)?;
-        }
-        let (lo, hi) = p.range;
-        let span = if hi > lo { hi - lo } else { 1.0 };
-        for r in 0..p.height {
-            for c in 0..p.width {
-                let v = p.values[r * p.width + c];
-                let [cr, cg, cb] = if v.is_finite() {
-                    inferno(((v - lo) / span).clamp(0.0, 1.0))
-                } else {
-                    [0, 0, 0]
-                };
-                let (px, py) = (x + (c * k) as i32, TOP + (r * k) as i32);
-                root.draw(&Rectangle::new(
-                    [(px, py), (px + k as i32, py + k as i32)],
-                    RGBColor(cr, cg, cb).filled(),
-                ))
-                .map_err(|e| err(path, e))?;
-            }
-        }
-        // The colour bar: lo at the left, hi at the right.
-        let bar_w = (p.width * k) as i32;
-        let y = TOP + image_h + 10;
-        for i in 0..bar_w {
-            let [cr, cg, cb] = inferno(i as f32 / (bar_w - 1).max(1) as f32);
-            root.draw(&Rectangle::new(
-                [(x + i, y), (x + i + 1, y + 12)],
-                RGBColor(cr, cg, cb).filled(),
-            ))
-            .map_err(|e| err(path, e))?;
-        }
-        let fmt = |v: f32| {
-            if v.abs() >= 100.0 || v == 0.0 {
-                format!("{v:.0}")
-            } else {
-                format!("{v:.3}")
-            }
-        };
-        text(&fmt(lo), x, y + 16, 12)?;
-        let hi_label = fmt(hi);
-        text(&hi_label, x + bar_w - 7 * hi_label.len() as i32, y + 16, 12)?;
-        text(p.unit, x, y + 32, 12)?;
-        x += (p.width * k).max(SIDE) as i32 + GAP;
-    }
-    for (i, line) in footer.lines().enumerate() {
-        text(line, GAP, TOP + image_h + 62 + 16 * i as i32, 12)?;
     }
     root.present().map_err(|e| err(path, e))?;
     Ok(())

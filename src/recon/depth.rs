@@ -261,11 +261,31 @@ fn smooth(dm: &DepthMap, iterations: usize) -> Vec<f32> {
     d
 }
 
+/// The first hidden surface along the wall normal from the wall point `(x, y)` of the
+/// wall frame: its distance from the wall (m) and the albedo at the hit (the hit
+/// triangle's per-vertex albedo interpolated at the hit's barycentrics, or its object's
+/// albedo); `None` where the ray meets no hidden surface. Either side of a face counts.
+pub fn first_surface(
+    geometry: &crate::geometry::SceneGeometry,
+    frame: &WallFrame,
+    x: f32,
+    y: f32,
+) -> Option<(f32, f32)> {
+    let origin = frame.to_world(Vec3::new(x, y, 1e-4));
+    let hit = geometry.intersect(origin, frame.n)?;
+    matches!(hit.kind, crate::geometry::SurfaceKind::Hidden { .. }).then(|| {
+        (
+            hit.t + 1e-4,
+            geometry.hidden[hit.flat as usize].albedo_at(hit.bary),
+        )
+    })
+}
+
 /// The depth map of the hidden surfaces of `geometry` over the columns of `grid`: the
 /// distance (m) from the wall along its normal to the first hidden surface, NaN where
-/// the column's ray hits none; the intensity is the albedo at the hit (0 where none).
-/// The same picture as [`depth_map`] for a surface instead of a volume, so the two
-/// compare pixel by pixel.
+/// the column's ray hits none; the intensity is the albedo at the hit (0 where none)
+/// ([`first_surface`] from each column's centre). The same picture as [`depth_map`] for
+/// a surface instead of a volume, so the two compare pixel by pixel.
 pub fn surface_depth_map(
     geometry: &crate::geometry::SceneGeometry,
     grid: &VoxelGrid,
@@ -276,13 +296,9 @@ pub fn surface_depth_map(
     for iy in 0..ny {
         for ix in 0..nx {
             let c = grid.center(ix, iy, 0);
-            let origin = frame.to_world(Vec3::new(c.x, c.y, 1e-4));
-            if let Some(hit) = geometry.intersect(origin, frame.n) {
-                if matches!(hit.kind, crate::geometry::SurfaceKind::Hidden { .. }) {
-                    depth[iy * nx + ix] = hit.t + 1e-4;
-                    intensity[iy * nx + ix] =
-                        geometry.hidden[hit.flat as usize].albedo_at(hit.bary);
-                }
+            if let Some((d, a)) = first_surface(geometry, frame, c.x, c.y) {
+                depth[iy * nx + ix] = d;
+                intensity[iy * nx + ix] = a;
             }
         }
     }

@@ -58,7 +58,9 @@ mod method;
 mod phasor;
 
 pub use backprojection::{backproject, backproject_with, downsample_time, zero_bins_before};
-pub use depth::{depth_map, depth_map_mesh, surface_depth_map, DepthMap, MeshOptions};
+pub use depth::{
+    depth_map, depth_map_mesh, first_surface, surface_depth_map, DepthMap, MeshOptions,
+};
 pub use image::{write_comparison_png, write_depth_png, write_volume_png};
 pub use lct::{lct, LctOptions};
 pub use method::{reconstruct, volume_surface, Method};

@@ -22,7 +22,8 @@ pub struct FitArgs {
     #[arg(long)]
     pub measured: Option<PathBuf>,
     /// Output directory: mesh.obj, mesh_all.obj, loss.csv, loss.png, transients.png,
-    /// checkpoint/.
+    /// albedo.npy and depth.npy (the fitted surface seen from the wall, (ny, nx) per scan
+    /// point), albedo.png, reconstruction.png (next to the LCT), summary.toml, checkpoint/.
     #[arg(short, long, default_value = "out/fit")]
     pub output: PathBuf,
     /// Initial mesh: plane, sphere, scene (the scene's hidden objects), or

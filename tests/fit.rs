@@ -73,6 +73,7 @@ fn config(schedule: Schedule) -> FitConfig {
         irf: None,
         reflectance: Default::default(),
         photon_counts: None,
+        capture: None,
     }
 }
 

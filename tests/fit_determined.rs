@@ -53,7 +53,7 @@ fn determination(peak: f32) -> (Vec<f64>, usize) {
         ..RenderOptions::from_scene(&scene)
     };
     let mut objective = common::objective(&scene, opts, Vec::new());
-    let (clean, ..) = objective.render(&letter).unwrap();
+    let clean = objective.render(&letter).unwrap().compared;
     let max = clean.iter().cloned().fold(0.0f32, f32::max);
     objective.measured = clean
         .iter()
@@ -63,7 +63,8 @@ fn determination(peak: f32) -> (Vec<f64>, usize) {
             (lambda + lambda.sqrt() * normal(i)).round().max(0.0)
         })
         .collect();
-    let (fitted, _, intensity, offset) = objective.render(&mesh).unwrap();
+    let r = objective.render(&mesh).unwrap();
+    let (fitted, intensity, offset) = (r.compared, r.intensity, r.time_offset_opl);
     let all = vec![true; mesh.faces.len()];
     let d = face_determination(&objective, &mesh, &all, &fitted, &intensity, offset, 1).unwrap();
     (d, letter.faces.len())

@@ -45,7 +45,7 @@ fn objective_gradient_matches_finite_differences_with_jitter_and_per_bin_backgro
 /// a floor, the direct tails, the Poisson deviance, one scan point held out.
 #[test]
 fn objective_gradient_matches_finite_differences_through_the_capture_model() {
-    use umbra::fit::capture::CaptureOptions;
+    use umbra::fit::capture_options::CaptureOptions;
     use umbra::fit::linear_fit::Likelihood;
     let options = CaptureOptions {
         prior: umbra::film::response::Response {
@@ -76,7 +76,7 @@ fn objective_gradient_matches_finite_differences_through_an_irf() {
 
 fn gradient_check(
     irf: Option<umbra::film::irf::Irf>,
-    capture: Option<umbra::fit::capture::CaptureOptions>,
+    capture: Option<umbra::fit::capture_options::CaptureOptions>,
 ) {
     // Measurement: the true letter, scaled, plus a decaying per-bin floor.
     let (scene, opts, mut measured) = small_letter();

@@ -140,9 +140,11 @@ fn sums<D: Design>(
         }
         c += pc;
     }
-    for i in 0..n {
-        for j in 0..i {
-            g[j][i] = g[i][j];
+    // The lower triangle was summed; mirror it.
+    for i in 1..n {
+        let (upper, lower) = g.split_at_mut(i);
+        for (j, row) in upper.iter_mut().enumerate() {
+            row[i] = lower[0][j];
         }
     }
     (g, r, c)

@@ -22,6 +22,7 @@
 //!   checkpoints).
 
 pub mod capture;
+pub mod capture_options;
 pub mod determined;
 pub mod init;
 pub mod intensity;
@@ -29,6 +30,7 @@ mod iters;
 pub mod linear_fit;
 pub mod metrics;
 pub mod objective;
+mod outputs;
 pub mod point_background;
 mod prepare;
 pub mod reconstruction;

@@ -62,7 +62,8 @@ pub struct FitRequest {
     /// How errors name the options.
     pub front: Front,
     pub measurement: Measurement,
-    /// Output directory: mesh.obj, mesh_all.obj, loss.csv, loss.png, transients.png,
+    /// Output directory: mesh.obj, mesh_all.obj, albedo.npy, depth.npy, albedo.png,
+    /// loss.csv, loss.png, calibration.csv (with the capture model), transients.png,
     /// reconstruction.png, summary.toml, checkpoint/.
     pub output: PathBuf,
     /// plane, sphere, scene (the scene's hidden objects), backprojection, lct, or auto
@@ -163,80 +164,6 @@ pub fn check_schedule(s: &Schedule) -> std::result::Result<(), String> {
     Ok(())
 }
 
-/// The capture model of `--background per-point` (`fit::capture`), its likelihood and
-/// response choices checked against the other options; `None` for other backgrounds.
-fn capture_options(
-    n: &dyn Fn(&str) -> String,
-    req: &FitRequest,
-    scene: &Scene,
-    per_point: bool,
-    counts: bool,
-    scan_block: u32,
-) -> Result<Option<super::capture::CaptureOptions>> {
-    use super::linear_fit::Likelihood;
-    let likelihood = match req.likelihood.as_deref() {
-        None if per_point && counts => Likelihood::Poisson {
-            counts_per_value: f64::from(scan_block * scan_block),
-        },
-        None | Some("l2") => Likelihood::L2,
-        Some("poisson") if !counts => {
-            return Err(Error::Invalid(format!(
-                "{} poisson: the measurement is not photon counts (non-negative integers)",
-                n("likelihood")
-            )))
-        }
-        Some("poisson") => Likelihood::Poisson {
-            counts_per_value: f64::from(scan_block * scan_block),
-        },
-        Some(other) => {
-            return Err(Error::Invalid(format!(
-                "{}: '{other}' is not one of poisson, l2",
-                n("likelihood")
-            )))
-        }
-    };
-    let irf = req.irf.as_deref();
-    if !per_point {
-        if likelihood != Likelihood::L2 {
-            return Err(Error::Invalid(format!(
-                "{} poisson needs {} per-point (the calibrated capture model)",
-                n("likelihood"),
-                n("background")
-            )));
-        }
-        if irf == Some("calibrate") {
-            return Err(Error::Invalid(format!(
-                "{} calibrate needs {} per-point (the calibrated capture model)",
-                n("irf"),
-                n("background")
-            )));
-        }
-        return Ok(None);
-    }
-    if scene.capture == CaptureType::Exhaustive {
-        return Err(Error::Invalid(format!(
-            "{} per-point models a scanned capture (confocal or single laser spot); this scene's capture is exhaustive",
-            n("background")
-        )));
-    }
-    if let Some(other) = irf.filter(|i| *i != "calibrate") {
-        return Err(Error::Invalid(format!(
-            "{} {other}: with {} per-point the detector response is calibrated from the capture ({} calibrate)",
-            n("irf"),
-            n("background"),
-            n("irf")
-        )));
-    }
-    if req.time_offset.is_some() {
-        return Err(Error::Invalid(format!(
-            "{}: with {} per-point the time offset is the calibrated response's t0",
-            n("time_offset"),
-            n("background")
-        )));
-    }
-    Ok(Some(super::capture::CaptureOptions::stanford(likelihood)))
-}
-
 /// Chamfer distances to the truth (mm); "seen" = the truth's surface seen from the
 /// scan ([`chamfer_seen`]).
 #[derive(Clone, Debug, serde::Serialize)]
@@ -266,7 +193,7 @@ pub struct Summary {
     /// The loss at the scan points held out of the fit (`--background per-point`).
     pub held_out_loss: Option<f64>,
     /// The detector response calibrated from the capture (`--background per-point`).
-    pub response: Option<ResponseSummary>,
+    pub response: Option<super::capture_options::ResponseSummary>,
     pub scale: f64,
     pub background: f64,
     /// Fitted time offset (OPL, m; 0 unless searched).
@@ -293,29 +220,6 @@ pub struct Summary {
     /// With a known truth: the baselines study's score (`fit::score`), the same numbers
     /// `umbra recon --truth` gives a reconstruction's surface.
     pub score: Option<super::score::SurfaceScore>,
-}
-
-/// A calibrated detector response in picoseconds (`fit::capture`).
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct ResponseSummary {
-    /// The core's standard deviation and its time zero (ps).
-    pub sigma_ps: f64,
-    pub t0_ps: f64,
-    /// Per tail, its weight and time constant (ps).
-    pub tail_weights: Vec<f64>,
-    pub tail_tau_ps: Vec<f64>,
-}
-
-impl ResponseSummary {
-    fn of(r: &crate::film::response::Response) -> ResponseSummary {
-        let ps = |opl: f64| opl / 2.997_924_58e-4;
-        ResponseSummary {
-            sigma_ps: ps(r.sigma),
-            t0_ps: ps(r.t0),
-            tail_weights: r.tails.iter().map(|t| t.0).collect(),
-            tail_tau_ps: r.tails.iter().map(|t| ps(t.1)).collect(),
-        }
-    }
 }
 
 /// What [`run`] returns.
@@ -592,7 +496,7 @@ pub fn run(
         Background::Constant
     });
     let per_point = background == Background::PerPoint;
-    let capture = capture_options(&n, req, &scene, per_point, counts, bin.1)?;
+    let capture = super::capture_options::from_request(&n, req, &scene, per_point, counts, bin.1)?;
     let irf_choice = req
         .irf
         .clone()
@@ -727,7 +631,10 @@ pub fn run(
             .held_out_loss
             .is_finite()
             .then_some(report.held_out_loss),
-        response: report.response.as_ref().map(ResponseSummary::of),
+        response: report
+            .response
+            .as_ref()
+            .map(super::capture_options::ResponseSummary::of),
         scale: report.intensity.scale,
         background: report.intensity.background,
         time_offset: report.time_offset_opl,

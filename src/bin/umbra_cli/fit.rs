@@ -35,7 +35,7 @@ pub struct FitArgs {
     #[arg(long, default_value = "plane")]
     pub init: String,
     /// Schedule TOML ([[stage]] tables: iters, solver, lr, large_steps, laplacian,
-    /// fit_albedo, albedo_step, remesh, time_downsample, scan_downsample, model, spp).
+    /// fit_albedo, albedo_step, albedo_tv, remesh, time_downsample, scan_downsample, model, spp).
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Total iterations, shared among the stages in the schedule's proportions.

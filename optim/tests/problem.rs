@@ -6,7 +6,7 @@
 
 mod common;
 
-use argmin::core::{CostFunction, Gradient};
+use argmin::core::Gradient;
 use optim::{Evaluation, Mesh, MeshObjective, MeshProblem, ProblemSettings, Project};
 
 /// A smooth loss of positions and values: `Σ_i a_i² |x_i − t_i|² + (a_i − 0.3)²·(1 + z_i)`.
@@ -75,13 +75,10 @@ fn check_gradient(fit_positions: bool) {
     let decoded = problem.decode(&moved).unwrap();
     assert_eq!(decoded.vertices == mesh.vertices, !fit_positions);
     let mut worst: f64 = 0.0;
-    for k in 0..theta.len() {
-        let h = 1e-6;
-        let (mut plus, mut minus) = (theta.clone(), theta.clone());
-        plus[k] += h;
-        minus[k] -= h;
-        let fd = (problem.cost(&plus).unwrap() - problem.cost(&minus).unwrap()) / (2.0 * h);
-        let err = (grad[k] - fd).abs() / fd.abs().max(1e-3);
+    for (k, (err, fd)) in common::fd_errors(&problem, &theta, &grad, 1e-6)
+        .into_iter()
+        .enumerate()
+    {
         worst = worst.max(err);
         assert!(err < 1e-5, "parameter {k}: adjoint {} vs FD {fd}", grad[k]);
     }

@@ -203,13 +203,10 @@ fn problem_gradient_with_albedo_tv_matches_finite_differences() {
         // Per block: [positions (the large-steps solve's 1e-12 residual, ~1e-12 |u| per
         // decode, limits the FD), values].
         let mut worst = [0.0f64; 2];
-        for k in 0..theta.len() {
-            let h = 1e-5;
-            let (mut plus, mut minus) = (theta.clone(), theta.clone());
-            plus[k] += h;
-            minus[k] -= h;
-            let fd = (problem.cost(&plus).unwrap() - problem.cost(&minus).unwrap()) / (2.0 * h);
-            let err = (grad[k] - fd).abs() / fd.abs().max(1e-3);
+        for (k, (err, fd)) in common::fd_errors(&problem, &theta, &grad, 1e-5)
+            .into_iter()
+            .enumerate()
+        {
             let block = usize::from(k >= values_at);
             worst[block] = worst[block].max(err);
             assert!(

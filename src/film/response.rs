@@ -31,6 +31,8 @@ use crate::adjoint::dual::{Dual, Real};
 pub const MAX_TAILS: usize = 3;
 /// Parameters: `σ`, `t0`, then `(w_i, τ_i)` per tail.
 pub const PARAMS: usize = 2 + 2 * MAX_TAILS;
+/// Optical path light travels in one picosecond (m): the responses' lengths are OPL.
+pub const OPL_PER_PS: f64 = 2.997_924_58e-4;
 /// Core reach in `σ` on either side.
 const CORE_REACH: f64 = 6.0;
 /// Tail reach in units of the longest `τ`.

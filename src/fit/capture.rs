@@ -11,10 +11,11 @@
 //! ([`super::linear_fit`]). The response `θ = (σ, t0, (w_i, τ_i))` is calibrated at the
 //! start of each stage on the stage's start mesh, by projected gradient descent on `L`
 //! (`∂L/∂θ` from the exact tap derivatives, [`ResponseKernel::param_gradient`]), for each
-//! number of tails from 0 to [`MAX_CALIBRATED_TAILS`]; the number kept is the one of the
-//! lowest loss on the scan points left out of the fit (held-out points: the nuisances and
-//! the response are fitted on the others and predict them), not the in-sample loss, which
-//! more tails always lower. Then the stage's evaluations hold `θ` fixed, so the envelope
+//! number of tails from 0 to [`MAX_CALIBRATED_TAILS`]; a richer response is kept only
+//! when it lowers the loss on the scan points left out of the fit (held-out points: the
+//! nuisances and the response are fitted on the others and predict them) by more than
+//! twice the standard error of the per-point differences, not by the in-sample loss,
+//! which more tails lower. Then the stage's evaluations hold `θ` fixed, so the envelope
 //! theorem gives the mesh's gradient as `R_θᵀ ∂L/∂(R ⊗ H)`.
 //!
 //! Where it fails: the stage's bins must resolve the core (calibration runs only where a
@@ -25,7 +26,7 @@
 use super::intensity::Intensity;
 use super::linear_fit::{self, Likelihood, LinearFit, Window};
 use super::point_background::PointBackground;
-use crate::film::response::{Response, ResponseKernel, PARAMS};
+use crate::film::response::{Response, ResponseKernel, OPL_PER_PS, PARAMS};
 
 /// Tails the calibration tries (0 to this many).
 pub const MAX_CALIBRATED_TAILS: usize = 2;
@@ -61,10 +62,14 @@ pub struct Candidate {
 }
 
 impl Candidate {
+    /// The header of [`Candidate::csv_row`]'s rows.
+    pub const CSV_HEADER: &'static str =
+        "tails,loss,held_out_loss,sigma_ps,t0_ps,w1,tau1_ps,w2,tau2_ps,kept";
+
     /// A CSV row: tails, loss, held-out loss, σ and t0 (ps), then weight and τ (ps) per
     /// tail up to [`MAX_CALIBRATED_TAILS`], kept (0/1).
     pub fn csv_row(&self) -> String {
-        let ps = |opl: f64| opl / 2.997_924_58e-4;
+        let ps = |opl: f64| opl / OPL_PER_PS;
         let r = &self.response;
         let mut row = format!(
             "{},{:e},{:e},{:.3},{:.3}",
@@ -94,8 +99,6 @@ pub struct CaptureComparison {
     pub adjoint: Vec<f32>,
     /// `R_θ ⊗ H` with the unfitted bins zeroed.
     pub blurred: Vec<f32>,
-    /// `μ`, at every scan point (held-out ones too), zero in the unfitted bins.
-    pub model: Vec<f32>,
     pub fit: LinearFit,
     /// The loss at the held-out points (NaN when none are held out).
     pub held_out: f64,
@@ -155,25 +158,10 @@ impl CaptureModel {
         } else {
             (f64::NAN, Vec::new())
         };
-        let model = blurred
-            .chunks_exact(self.bins)
-            .enumerate()
-            .flat_map(|(p, h)| {
-                let (design, beta) = (&self.design, &fit.beta);
-                (0..self.bins).map(move |t| {
-                    if t < self.first {
-                        0.0
-                    } else {
-                        linear_fit::model(design, beta, p, t, f64::from(h[t])) as f32
-                    }
-                })
-            })
-            .collect();
         CaptureComparison {
             loss: fit.loss,
             adjoint,
             blurred,
-            model,
             fit,
             held_out,
             held_out_points,
@@ -284,22 +272,35 @@ impl CaptureModel {
 }
 
 impl CaptureModel {
-    /// The comparison's nuisances as an [`Intensity`]: the gain at the scan's centre as
-    /// the scale, the background's mean over the fitted bins of the points in the fit.
+    /// `μ` at every scan point (held-out ones too) of the nuisances `fit` over the
+    /// blurred render, zero in the unfitted bins: the fitted transient (made on demand;
+    /// the fit's evaluations do not need it).
+    pub fn fitted(&self, blurred: &[f32], fit: &LinearFit) -> Vec<f32> {
+        let (design, beta) = (&self.design, &fit.beta);
+        blurred
+            .chunks_exact(self.bins)
+            .enumerate()
+            .flat_map(|(p, h)| {
+                (0..self.bins).map(move |t| {
+                    if t < self.first {
+                        0.0
+                    } else {
+                        linear_fit::model(design, beta, p, t, f64::from(h[t])) as f32
+                    }
+                })
+            })
+            .collect()
+    }
+
+    /// The comparison's nuisances as an [`Intensity`]: the gain's constant term as the
+    /// scale, the background's mean over the fitted bins of the points in the fit.
     pub fn intensity(&self, c: &CaptureComparison) -> Intensity {
-        let (mut sum, mut n) = (0.0, 0usize);
-        for p in 0..self.design.coords.len() {
-            if !self.in_fit.get(p).copied().unwrap_or(true) {
-                continue;
-            }
-            for t in self.first..self.bins {
-                sum += self.design.background(&c.fit.beta, p, t);
-                n += 1;
-            }
-        }
+        let background =
+            self.design
+                .mean_background(&c.fit.beta, &self.in_fit, self.first..self.bins);
         Intensity {
             scale: c.fit.beta[0],
-            background: sum / n.max(1) as f64,
+            background,
             background_bins: Vec::new(),
         }
     }
@@ -340,8 +341,7 @@ fn held_out_loss(
                 }
                 Likelihood::Poisson { counts_per_value } => {
                     let mu = mu.max(0.1 / counts_per_value);
-                    let log = if m > 0.0 { m * (m / mu).ln() } else { 0.0 };
-                    sum += 2.0 * counts_per_value * (mu - m + log);
+                    sum += 2.0 * counts_per_value * linear_fit::deviance_term(m, mu);
                 }
             }
         }
@@ -476,32 +476,12 @@ mod tests {
     /// Poisson counts of the true model (gain 3 + 0.5 x, floor 0.5, tail gain 2e-4).
     fn counts(m: &CaptureModel, raw: &[f32]) -> Vec<f32> {
         let (blurred, _) = m.blur(raw);
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut uniform = || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-        };
-        blurred
-            .iter()
-            .enumerate()
-            .map(|(i, &h)| {
-                let (p, t) = (i / BINS, i % BINS);
-                let (x, _) = m.design.coords[p];
-                let mu = (3.0 + 0.5 * x) * f64::from(h)
-                    + 0.5
-                    + 2e-4 * m.design.direct[p] * m.design.tails[0][t];
-                let (limit, mut k, mut q) = ((-mu).exp(), 0u32, 1.0);
-                loop {
-                    q *= uniform();
-                    if q <= limit {
-                        break k as f32;
-                    }
-                    k += 1;
-                }
-            })
-            .collect()
+        let mu = blurred.iter().enumerate().map(|(i, &h)| {
+            let (p, t) = (i / BINS, i % BINS);
+            let (x, _) = m.design.coords[p];
+            (3.0 + 0.5 * x) * f64::from(h) + 0.5 + 2e-4 * m.design.direct[p] * m.design.tails[0][t]
+        });
+        linear_fit::poisson_counts(mu, 0x9e37_79b9_7f4a_7c15)
     }
 
     const POISSON: Likelihood = Likelihood::Poisson {

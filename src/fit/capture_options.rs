@@ -6,7 +6,7 @@ use super::capture::{CaptureModel, RESOLVED_BINS_PER_SIGMA};
 use super::linear_fit::Likelihood;
 use super::point_background::PointBackground;
 use crate::error::{Error, Result};
-use crate::film::response::Response;
+use crate::film::response::{Response, OPL_PER_PS};
 use crate::scene::CaptureType;
 
 /// The detector response of the Stanford LCT system measured on its captures
@@ -221,7 +221,7 @@ pub struct ResponseSummary {
 
 impl ResponseSummary {
     pub fn of(r: &Response) -> ResponseSummary {
-        let ps = |opl: f64| opl / 2.997_924_58e-4;
+        let ps = |opl: f64| opl / OPL_PER_PS;
         ResponseSummary {
             sigma_ps: ps(r.sigma),
             t0_ps: ps(r.t0),

@@ -226,8 +226,8 @@ impl Intensity {
                 background: 0.0,
                 background_bins: Vec::new(),
             },
-            // Per-point backgrounds are fitted by `fit::capture`; as a closed form here
-            // (a caller that did not route them there) the nearest is one constant.
+            // Per-point backgrounds are fitted by `fit::capture` (`fit::fit` refuses the
+            // one without the other), never here; the arm only completes the match.
             Background::Constant | Background::PerPoint => {
                 let (scale, background) = fit_constant(&total, model.scale);
                 Intensity {

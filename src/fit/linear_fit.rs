@@ -161,6 +161,13 @@ pub fn fit_l2<D: Design>(d: &D, render: &[f32], measured: &[f32], win: &Window) 
     }
 }
 
+/// One bin's Poisson deviance term `μ − M + M ln(M/μ)` (`M ln(M/μ) = 0` where `M = 0`;
+/// `μ > 0`): the deviance is twice its sum.
+pub fn deviance_term(m: f64, mu: f64) -> f64 {
+    let log = if m > 0.0 { m * (m / mu).ln() } else { 0.0 };
+    mu - m + log
+}
+
 /// The Poisson deviance terms `(D, ∇, ∇²)` at `beta` (unnormalised: `Σ (μ − M + M ln(M/μ))`
 /// and its derivatives in `β`), or `None` if some `μ ≤ 0` on the window.
 fn poisson_terms<D: Design>(
@@ -174,8 +181,7 @@ fn poisson_terms<D: Design>(
         if mu <= 0.0 {
             return (0.0, 0.0, f64::INFINITY);
         }
-        let log = if m > 0.0 { m * (m / mu).ln() } else { 0.0 };
-        (m / (mu * mu), 1.0 - m / mu, mu - m + log)
+        (m / (mu * mu), 1.0 - m / mu, deviance_term(m, mu))
     });
     dev.is_finite().then_some((dev, grad, hess))
 }
@@ -469,4 +475,29 @@ fn solve(g: &[[f64; MAX_COLS]; MAX_COLS], r: &[f64; MAX_COLS], free: &[usize]) -
         x[c] = (a[c][k] - s) / a[c][c];
     }
     Some(x.iter().zip(&d).map(|(x, d)| x * d).collect())
+}
+
+/// Poisson counts of the means `mu`, by Knuth's method on a linear congruential stream
+/// from `seed` (the tests' synthetic photon counts).
+#[cfg(test)]
+pub(crate) fn poisson_counts(mu: impl IntoIterator<Item = f64>, seed: u64) -> Vec<f32> {
+    let mut state = seed;
+    let mut uniform = || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    };
+    mu.into_iter()
+        .map(|m| {
+            let (limit, mut k, mut p) = ((-m).exp(), 0u32, 1.0);
+            loop {
+                p *= uniform();
+                if p <= limit {
+                    break k as f32;
+                }
+                k += 1;
+            }
+        })
+        .collect()
 }

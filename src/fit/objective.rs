@@ -16,6 +16,7 @@
 
 use super::capture::CaptureModel;
 use super::intensity::{Intensity, IntensityModel};
+use super::linear_fit::LinearFit;
 use super::time_offset::Comparator;
 use crate::adjoint;
 use crate::geometry::{mesh::TriMesh, SceneGeometry};
@@ -141,8 +142,8 @@ struct Forward {
     adjoint: Vec<f32>,
     intensity: Intensity,
     time_offset_opl: f64,
-    /// The fitted transient `μ` (zero in the unfitted bins), with a capture model.
-    model: Option<Vec<f32>>,
+    /// The capture model's fitted nuisances (with a capture model).
+    capture_fit: Option<LinearFit>,
     /// The loss at the held-out scan points (NaN: none held out, or no capture model).
     held_out: f64,
 }
@@ -182,8 +183,10 @@ impl UmbraObjective {
     pub fn render(&self, mesh: &Mesh) -> crate::Result<Rendered> {
         let f = self.forward(mesh)?;
         let bins = self.scene.film.temporal_bins as usize;
-        let model = f.model.unwrap_or_else(|| {
-            f.render
+        let model = match (&self.capture, &f.capture_fit) {
+            (Some(c), Some(fit)) => c.fitted(&f.render, fit),
+            _ => f
+                .render
                 .iter()
                 .enumerate()
                 .map(|(i, &h)| {
@@ -194,8 +197,8 @@ impl UmbraObjective {
                         (f.intensity.scale * h as f64 + f.intensity.background_at(t)) as f32
                     }
                 })
-                .collect()
-        });
+                .collect(),
+        };
         Ok(Rendered {
             compared: f.render,
             model,
@@ -261,7 +264,7 @@ impl UmbraObjective {
                 adjoint: c.adjoint,
                 intensity,
                 time_offset_opl: capture.response.t0,
-                model: Some(c.model),
+                capture_fit: Some(c.fit),
                 held_out: c.held_out,
             });
         }
@@ -277,7 +280,7 @@ impl UmbraObjective {
             adjoint,
             intensity,
             time_offset_opl,
-            model: None,
+            capture_fit: None,
             held_out: f64::NAN,
         })
     }

@@ -66,7 +66,7 @@ pub fn write_loss(out: &Path, history: &[LossRecord]) -> Result<Vec<PathBuf>> {
             points: points(&|r| r.cost),
         },
         Series {
-            label: "data loss |sH - M|^2 / |M|^2 (at the stage's resolution)",
+            label: "data loss: |sH + b - M|^2 / |M|^2, or Poisson deviance per bin (at the stage's resolution)",
             points: points(&|r| r.data_loss),
         },
     ];

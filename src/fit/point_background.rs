@@ -84,6 +84,47 @@ impl PointBackground {
     pub fn background(&self, beta: &[f64; MAX_COLS], p: usize, t: usize) -> f64 {
         super::linear_fit::model(self, beta, p, t, 0.0)
     }
+
+    /// The background's mean over the bins `bins` of the points `in_fit` marks (empty:
+    /// all): the floor's terms averaged over those points, plus each tail's gain times
+    /// the points' mean `D_p` times the tail's mean over `bins` (the background is a sum
+    /// of products of a point's and a bin's factor, so its mean is `O(points + bins)`).
+    pub fn mean_background(
+        &self,
+        beta: &[f64; MAX_COLS],
+        in_fit: &[bool],
+        bins: std::ops::Range<usize>,
+    ) -> f64 {
+        let points: Vec<usize> = (0..self.coords.len())
+            .filter(|&p| in_fit.get(p).copied().unwrap_or(true))
+            .collect();
+        if points.is_empty() || bins.is_empty() {
+            return 0.0;
+        }
+        let n = points.len() as f64;
+        let (ng, nf) = (monomials(self.gain_degree), monomials(self.floor_degree));
+        let mut mean_terms = [0.0; 6];
+        let mut mean_direct = 0.0;
+        for &p in &points {
+            let (x, y) = self.coords[p];
+            mean_terms
+                .iter_mut()
+                .zip(terms(x, y))
+                .for_each(|(m, t)| *m += t / n);
+            mean_direct += self.direct[p] / n;
+        }
+        let floor: f64 = (0..nf).map(|i| beta[ng + i] * mean_terms[i]).sum();
+        let tails: f64 = self
+            .tails
+            .iter()
+            .enumerate()
+            .map(|(k, tail)| {
+                let mean_tail = tail[bins.clone()].iter().sum::<f64>() / bins.len() as f64;
+                beta[ng + nf + k] * mean_direct * mean_tail
+            })
+            .sum();
+        floor + tails
+    }
 }
 
 impl Design for PointBackground {
@@ -131,7 +172,9 @@ pub fn exponential_tail(tau: f64, start: f64, width: f64, bins: usize) -> Vec<f6
 
 #[cfg(test)]
 mod tests {
-    use super::super::linear_fit::{adjoint, fit, model, Likelihood, LinearFit, Window};
+    use super::super::linear_fit::{
+        adjoint, fit, model, poisson_counts, Likelihood, LinearFit, Window,
+    };
     use super::*;
 
     const BINS: usize = 40;
@@ -291,7 +334,7 @@ mod tests {
             &h,
             &[5.0, 0.5, 0.0, 20.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.01, 0.002],
         );
-        let counts = poisson_counts(&mu);
+        let counts = poisson_counts(mu.iter().map(|&m| f64::from(m)), 0x2545_f491_4f6c_dd1d);
         let f = fit(
             &d,
             &h,
@@ -307,26 +350,24 @@ mod tests {
         assert!((f.beta[0] - 5.0).abs() < 0.5, "{:?}", f.beta);
     }
 
-    /// Poisson counts of mean `mu` (Knuth's method on a fixed linear congruential stream).
-    fn poisson_counts(mu: &[f32]) -> Vec<f32> {
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut uniform = || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-        };
-        mu.iter()
-            .map(|&m| {
-                let (limit, mut k, mut p) = ((-f64::from(m)).exp(), 0u32, 1.0);
-                loop {
-                    p *= uniform();
-                    if p <= limit {
-                        break k as f32;
-                    }
-                    k += 1;
-                }
-            })
-            .collect()
+    #[test]
+    fn the_mean_background_is_the_mean_of_the_background() {
+        let (d, _) = setup(1);
+        let mut beta = [0.0; MAX_COLS];
+        beta[..TRUTH.len()].copy_from_slice(&TRUTH);
+        let in_fit: Vec<bool> = (0..36).map(|p| p % 4 != 1).collect();
+        let (mut sum, mut n) = (0.0, 0.0);
+        for p in (0..36).filter(|&p| in_fit[p]) {
+            for t in FIRST..BINS {
+                sum += d.background(&beta, p, t);
+                n += 1.0;
+            }
+        }
+        let mean = d.mean_background(&beta, &in_fit, FIRST..BINS);
+        assert!(
+            (mean - sum / n).abs() < 1e-12 * (sum / n).abs(),
+            "{mean} against {}",
+            sum / n
+        );
     }
 }

@@ -378,6 +378,11 @@ pub fn fit(
             base.film.temporal_bins
         )));
     }
+    if (cfg.intensity.background == super::Background::PerPoint) != cfg.capture.is_some() {
+        return Err(Error::Invalid(
+            "the per-point background is the capture model's: FitConfig needs `capture` (fit::capture_options) with `Background::PerPoint`, and only with it".into(),
+        ));
+    }
     if let Some(i) = measured.iter().position(|v| !v.is_finite()) {
         return Err(Error::Invalid(format!(
             "the measurement has a non-finite value at flat index {i}"
@@ -493,7 +498,10 @@ pub fn fit(
     files.extend(write_loss(out, &outcome.history)?);
     if cfg.capture.is_some() {
         let path = out.join("calibration.csv");
-        let mut csv = String::from("time_downsample,scan_downsample,bin_width_m,tails,loss,held_out_loss,sigma_ps,t0_ps,w1,tau1_ps,w2,tau2_ps,kept\n");
+        let mut csv = format!(
+            "time_downsample,scan_downsample,bin_width_m,{}\n",
+            super::capture::Candidate::CSV_HEADER
+        );
         factory
             .calibrations
             .borrow()

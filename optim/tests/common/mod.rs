@@ -214,3 +214,24 @@ pub fn boundary_vertices(m: &Mesh) -> Vec<u32> {
     vs.dedup();
     vs
 }
+
+/// Per parameter of `theta`, the relative error `|g − FD| / max(|FD|, 1e-3)` of the
+/// gradient `grad` against central differences of `problem`'s cost with step `h`, and the
+/// difference itself.
+pub fn fd_errors(
+    problem: &optim::MeshProblem,
+    theta: &[f64],
+    grad: &[f64],
+    h: f64,
+) -> Vec<(f64, f64)> {
+    use argmin::core::CostFunction;
+    (0..theta.len())
+        .map(|k| {
+            let (mut plus, mut minus) = (theta.to_vec(), theta.to_vec());
+            plus[k] += h;
+            minus[k] -= h;
+            let fd = (problem.cost(&plus).unwrap() - problem.cost(&minus).unwrap()) / (2.0 * h);
+            ((grad[k] - fd).abs() / fd.abs().max(1e-3), fd)
+        })
+        .collect()
+}

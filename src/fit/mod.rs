@@ -35,6 +35,7 @@ pub mod point_background;
 mod prepare;
 pub mod reconstruction;
 pub mod request;
+mod request_options;
 pub mod resolution;
 pub mod run;
 pub mod score;

@@ -284,3 +284,45 @@ fn timing_confocal_64_scan_64_cubed() {
         }
     }
 }
+
+/// `umbra recon --mesh` of a fit's mesh writes the mesh's albedo at each column's first
+/// hit (`albedo.npy`, as the vertex colours say), on the depth map's columns: the value
+/// where the square is, NaN beside it.
+#[test]
+fn recon_of_a_mesh_writes_its_albedo() {
+    let dir = tmp_dir("recon-mesh-albedo");
+    let scene = SceneSpec::default().write(&dir);
+    // A 0.2 m square 0.6 m from the wall, every vertex of albedo 0.35.
+    let obj = "v -0.1 -0.1 0.6 0.35 0.35 0.35\nv 0.1 -0.1 0.6 0.35 0.35 0.35\n\
+               v 0.1 0.1 0.6 0.35 0.35 0.35\nv -0.1 0.1 0.6 0.35 0.35 0.35\nf 1 2 3\nf 1 3 4\n";
+    let mesh = dir.join("fit.obj");
+    std::fs::write(&mesh, obj).unwrap();
+    let out = dir.join("out");
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_umbra"))
+        .arg("recon")
+        .arg(&scene)
+        .arg("--mesh")
+        .arg(&mesh)
+        .args(["--grid", "8,8,16", "-o"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        status.status.success(),
+        "{}",
+        String::from_utf8_lossy(&status.stderr)
+    );
+    let albedo = umbra::io::read_npy(&out.join("albedo.npy")).unwrap();
+    let depth = umbra::io::read_npy(&out.join("depth.npy")).unwrap();
+    assert_eq!(albedo.shape, depth.shape);
+    let hits = depth.data.iter().filter(|d| d.is_finite()).count();
+    assert!(hits > 0 && hits < depth.data.len(), "{hits} columns hit");
+    for (a, d) in albedo.data.iter().zip(&depth.data) {
+        if d.is_finite() {
+            assert!((a - 0.35).abs() < 1e-5, "albedo {a}");
+        } else {
+            assert!(a.is_nan(), "albedo {a} where nothing is hit");
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

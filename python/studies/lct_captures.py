@@ -6,9 +6,10 @@ same capture (issue 20; docs/BASELINES.md).
     .venv/bin/python python/studies/lct_captures.py [--captures diffuse_s,...]
         [--models lambertian,retroreflective] [--out out/lct_captures] [--docs docs]
 
-Per capture and model: `umbra fit scenes/lct.toml --measured data_X.mat --init auto`
-(the defaults of docs/FITTING.md: bins before OPL 0.72 m left out, 8,2 binning, per-bin
-background, the measured impulse response, except s_u's 9 mm Gaussian, RESPONSE),
+Per capture and model: `umbra fit scenes/lct.toml --measured data_X.mat --init plane`
+(the documented command, no other flags; the defaults of docs/FITTING.md: bins before OPL
+0.72 m left out, 8,2 binning, the capture model calibrated from the capture: a response
+with tails, a gain field, a floor and the direct tails per scan point, Poisson deviance),
 `--reflectance retroreflective` for the retroreflective model, with the sheeting's angular
 falloff `--retro-falloff M` chosen per capture: a fit from a plane for each M of FALLOFFS
 (~10 s each: retroreflective receivers have no boundary terms), the M of the lowest
@@ -16,7 +17,9 @@ relative L2 kept for the final fit. The reconstructions: `umbra recon --method l
 --subtract-floor --snr 0.1` on 64 x 64 x 256 voxels over 0.2-1.2 m, and y-tal's fk
 (ytal_recon.py) of the same preprocessed capture (`umbra convert --ignore-before 0.72
 --time-bin 8`) on the same grid, both shown as front maximum projections over the depths
-where the papers place the objects (0.25-0.9 m) and as depth maps.
+where the papers place the objects (0.25-0.9 m), next to the fit's albedo and depth seen
+from the wall (`umbra recon --mesh mesh_all.obj` on the same columns: every fitted face,
+dark ones too, since albedo is what shows a chart's bars).
 """
 from __future__ import annotations
 
@@ -45,11 +48,6 @@ def grid(capture):
 SHOW = (0.25, 0.9)
 
 
-# The detector response per capture where the measured one fits worse: s_u's direct
-# return is distorted (pile-up), and a 9 mm Gaussian fits it better (docs/FITTING.md,
-# "Retroreflective captures": relative L2 0.167 against 0.240).
-RESPONSE = {"s_u": ["--irf", "none", "--jitter", "0.009"]}
-
 # The retroreflective model's angular falloff exponents tried per capture (cos^m).
 FALLOFFS = (0, 2, 4, 8, 12, 16)
 
@@ -59,7 +57,7 @@ def fit_only(capture, model, d, init, falloff=None):
     shutil.rmtree(d, ignore_errors=True)
     mat = os.path.join(DATA, f"data_{capture}.mat")
     cmd = [UMBRA, "fit", os.path.join(ROOT, "scenes", "lct.toml"), "--measured", mat,
-           "--init", init, "-q", "-o", d, *RESPONSE.get(capture, [])]
+           "--init", init, "-q", "-o", d]
     if model == "retroreflective":
         cmd += ["--reflectance", "retroreflective"]
         if falloff is not None:
@@ -80,14 +78,14 @@ def choose_falloff(capture, out):
 
 
 def fit(capture, model, out, init="auto", falloff=None):
-    """`umbra fit` of the capture with `model`; its summary, and the fitted surface's depth
-    map on the reconstructions' grid (fit/depth/depth.npy)."""
+    """`umbra fit` of the capture with `model`; its summary, and the folder of the fitted
+    surface's depth and albedo maps on the reconstructions' grid (depth.npy, albedo.npy)."""
     d = os.path.join(out, f"{capture}-{model}")
     mat = os.path.join(DATA, f"data_{capture}.mat")
     fit_only(capture, model, d, init, falloff)
     run([UMBRA, "recon", os.path.join(ROOT, "scenes", "lct.toml"), "--measured", mat,
-         "--mesh", os.path.join(d, "mesh.obj"), *grid(capture), "-o", os.path.join(d, "depth")])
-    return read_toml(os.path.join(d, "summary.toml")), os.path.join(d, "depth", "depth.npy")
+         "--mesh", os.path.join(d, "mesh_all.obj"), *grid(capture), "-o", os.path.join(d, "seen")])
+    return read_toml(os.path.join(d, "summary.toml")), os.path.join(d, "seen")
 
 
 def lct(capture, out):
@@ -139,15 +137,21 @@ def picture(path, capture, lct_dir, fk_vol, fits):
     panels = [("LCT (Umbra)", *front(np.load(os.path.join(lct_dir, "volume.npy")), z))]
     if fk_vol:
         panels.append(("f-k (y-tal)", *front(np.load(fk_vol), z)))
-    fig, axes = plt.subplots(1, len(panels) + len(fits), figsize=(2.4 * (len(panels) + len(fits)), 2.8))
+    cols = len(panels) + 2 * len(fits)
+    fig, axes = plt.subplots(1, cols, figsize=(2.4 * cols, 2.8))
     axes = np.atleast_1d(axes)
     for ax, (name, mip, _) in zip(axes, panels):
         ax.imshow(mip, cmap="magma")
         ax.set_title(name, fontsize=8)
-    for ax, (model, depth_path, l2) in zip(axes[len(panels):], fits):
-        d = np.load(depth_path)[::-1, ::-1]
-        ax.imshow(d, cmap="viridis", vmin=SHOW[0], vmax=SHOW[1])
-        ax.set_title(f"fit, {model}\ndepth {SHOW[0]}-{SHOW[1]} m, L2 {l2:.3f}", fontsize=8)
+    for i, (model, seen, l2) in enumerate(fits):
+        a = np.load(os.path.join(seen, "albedo.npy"))[::-1, ::-1]
+        d = np.load(os.path.join(seen, "depth.npy"))[::-1, ::-1]
+        top = np.nanmax(a) if np.isfinite(a).any() else 1.0
+        ax_a, ax_d = axes[len(panels) + 2 * i], axes[len(panels) + 2 * i + 1]
+        ax_a.imshow(np.nan_to_num(a, nan=0.0), cmap="magma", vmin=0.0, vmax=top)
+        ax_a.set_title(f"fit albedo, {model}\nrelative L2 {l2:.3f}", fontsize=8)
+        ax_d.imshow(d, cmap="viridis", vmin=SHOW[0], vmax=SHOW[1])
+        ax_d.set_title(f"fit depth\n{SHOW[0]}-{SHOW[1]} m", fontsize=8)
     for ax in axes:
         ax.set_xticks([])
         ax.set_yticks([])
@@ -159,8 +163,8 @@ def picture(path, capture, lct_dir, fk_vol, fits):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--captures", default=",".join(CAPTURES))
-    ap.add_argument("--models", default="lambertian,retroreflective")
-    ap.add_argument("--init", default="auto", help="umbra fit --init (default auto)")
+    ap.add_argument("--models", default="lambertian")
+    ap.add_argument("--init", default="plane", help="umbra fit --init (default plane)")
     ap.add_argument("--out", default=os.path.join(ROOT, "out", "lct_captures"))
     ap.add_argument("--docs", default=os.path.join(ROOT, "docs"))
     args = ap.parse_args(argv)
@@ -174,11 +178,11 @@ def main(argv=None):
             if m == "retroreflective":
                 falloff, sweep = choose_falloff(c, args.out)
                 sweeps.append((c, sweep))
-            s, depth = fit(c, m, args.out, args.init, falloff)
+            s, seen = fit(c, m, args.out, args.init, falloff)
             floor = s.get("photon_noise_floor")
-            rows.append((c, m, falloff, s["relative_l2"], floor, s["seconds"]))
+            rows.append((c, m, falloff, s, floor))
             name = m if falloff is None else f"retro, cos^{falloff}"
-            fits.append((name, depth, s["relative_l2"]))
+            fits.append((name, seen, s["relative_l2"]))
             print(f"{c} {m}: relative L2 {s['relative_l2']:.3f} (floor {floor}), {s['seconds']:.0f} s",
                   flush=True)
         if args.docs:
@@ -188,12 +192,22 @@ def main(argv=None):
         os.makedirs(os.path.join(args.docs, "baselines"), exist_ok=True)
         with open(os.path.join(args.docs, "baselines", "lct_captures.md"), "w") as f:
             f.write("<!-- generated by python/studies/lct_captures.py; do not edit -->\n")
-            f.write("| capture | model | falloff m | relative L2 | photon floor | L2 / floor | fit time (s) |\n")
-            f.write("|---|---|---|---|---|---|---|\n")
-            for c, m, falloff, l2, floor, sec in rows:
+            f.write("| capture | model | falloff m | relative L2 | photon floor | L2 / floor "
+                    "| deviance / bin | held out | response σ (ps) | tails (weight at τ ps) "
+                    "| fit time (s) |\n")
+            f.write("|---|---|---|---|---|---|---|---|---|---|---|\n")
+            for c, m, falloff, s, floor in rows:
+                l2 = s["relative_l2"]
                 ratio = f"{l2 / floor:.2f}" if floor else "n/a"
                 fm = "" if falloff is None else str(falloff)
-                f.write(f"| {c} | {m} | {fm} | {l2:.3f} | {floor:.3f} | {ratio} | {sec:.0f} |\n")
+                num = lambda k: f"{s[k]:.2f}" if k in s else "n/a"  # noqa: E731
+                r = s.get("response") or {}
+                sigma = f"{r['sigma_ps']:.1f}" if r else "n/a"
+                tails = ", ".join(f"{100 * w:.0f} % at {t:.0f}"
+                                  for w, t in zip(r.get("tail_weights", []), r.get("tail_tau_ps", [])))
+                f.write(f"| {c} | {m} | {fm} | {l2:.3f} | {floor:.3f} | {ratio} | "
+                        f"{num('deviance_per_bin')} | {num('held_out_loss')} | {sigma} | "
+                        f"{tails or 'none'} | {s['seconds']:.0f} |\n")
             f.write(f"\n(`umbra fit --init {args.init}`; fit time is all starts together.)\n")
             if sweeps:
                 f.write("\nThe retroreflective model's falloff, fits from a plane (relative L2):\n\n")

@@ -73,7 +73,8 @@ pub struct ReconArgs {
     #[arg(long)]
     pub truth: bool,
     /// Output directory: volume.npy, depth.npy ((ny, nx), m from the wall, NaN where
-    /// empty), depth.png, volume.png, surface.obj, summary.toml.
+    /// empty), depth.png, volume.png, surface.obj, summary.toml; with `--mesh`, albedo.npy
+    /// ((ny, nx), the mesh's albedo at the first hit, NaN where none) instead of the volume.
     #[arg(short, long, default_value = "out/recon")]
     pub output: PathBuf,
 }
@@ -150,6 +151,20 @@ pub fn recon(args: ReconArgs, scene: Scene) -> Result<()> {
     let (name, depth, surface) = if let Some(path) = &args.mesh {
         let mesh = TriMesh::load_obj(path)?;
         let depth = mesh_depth_map(&scene, &umbra::fit::fit_mesh(&mesh), true, &grid);
+        // The albedo at each column's hit (a fit's mesh carries it as vertex colours).
+        let albedo = depth
+            .intensity
+            .iter()
+            .zip(&depth.depth)
+            .map(|(&a, d)| if d.is_finite() { a } else { f32::NAN })
+            .collect();
+        umbra::io::write_npy(
+            &out.join("albedo.npy"),
+            &Transient {
+                data: albedo,
+                shape: vec![dims[1], dims[0]],
+            },
+        )?;
         ("mesh".to_string(), depth, mesh)
     } else {
         let (name, volume) = match (&args.volume, data) {

@@ -117,6 +117,7 @@ fn depth_map_mesh_faces_the_wall_at_the_recovered_depths() {
         &frame,
         &MeshOptions {
             smooth_iterations: 5,
+            ..MeshOptions::default()
         },
     )
     .unwrap();

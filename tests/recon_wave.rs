@@ -135,3 +135,130 @@ fn lct_initial_mesh_lies_on_the_patch() {
     let e = initial_mesh(&single, &t.data, 0, &Init::Lct).unwrap_err();
     assert!(e.to_string().contains("confocal"), "{e}");
 }
+
+/// `--init lct` on two objects at their own depths, the near one in front of the far one
+/// over some columns (`s_u`'s S and U): each is a sheet of its own at its depth, no face
+/// joins them (a few vertices of the LCT's own arcs aside).
+#[test]
+fn lct_start_holds_two_objects_at_their_depths_and_albedo() {
+    use umbra::fit::run::initial_mesh;
+    use umbra::fit::Init;
+    let (near, far) = (0.5f64, 0.85f64);
+    let s = SceneSpec {
+        scan: [16, 16],
+        scan_size: 0.8,
+        bins: 128,
+        bin_width: BIN,
+        start_opl: 0.8,
+        sigma_opl: None,
+        objects: vec![
+            (
+                square_obj([-0.08, 0.0, near as f32], 0.24),
+                1.0,
+                "lambertian",
+            ),
+            (square_obj([0.1, 0.0, far as f32], 0.3), 0.5, "lambertian"),
+        ],
+        model: "tri3",
+        render_extra: vec!["visibility = \"none\"".into()],
+        ..SceneSpec::default()
+    }
+    .scene();
+    let t = render(&s, Model::Tri3, 1, 0);
+    let mesh = initial_mesh(&s, &t.data, 0, &Init::Lct).unwrap();
+    let z = |v: u32| mesh.vertices[v as usize][2];
+    let on = |depth: f64| -> Vec<f64> {
+        (0..mesh.vertices.len() as u32)
+            .filter(|&v| (z(v) - depth).abs() < 2.0 * DEPTH_TOL as f64)
+            .map(|v| mesh.vertex_values[v as usize])
+            .collect()
+    };
+    let (a_near, a_far) = (on(near), on(far));
+    // The LCT's limited aperture leaves a few vertices off the objects (arcs behind the
+    // near one, found 9 of 145 at 0.82-0.83 m): nine in ten on them, none between them.
+    assert!(
+        10 * (a_near.len() + a_far.len()) >= 9 * mesh.vertices.len(),
+        "{} near, {} far of {} vertices",
+        a_near.len(),
+        a_far.len(),
+        mesh.vertices.len()
+    );
+    assert!(
+        (0..mesh.vertices.len() as u32).all(|v| z(v) < near + 0.1 || z(v) > far - 0.1),
+        "a vertex between the two objects"
+    );
+    assert!(
+        a_near.len() >= 8 && a_far.len() >= 8,
+        "{} near, {} far",
+        a_near.len(),
+        a_far.len()
+    );
+    for f in &mesh.faces {
+        let d: Vec<f64> = f.iter().map(|&v| z(v)).collect();
+        assert!(
+            d.iter().all(|x| (x - d[0]).abs() < 0.1),
+            "a face across the two objects: {d:?}"
+        );
+    }
+    // across depths the LCT's brightness carries albedo only roughly (0.82 for 0.5 here;
+    // recon::surfaces): reported, not asserted
+    eprintln!(
+        "LCT start: {} near, {} far vertices; albedo far / near {:.3} (true 0.5)",
+        a_near.len(),
+        a_far.len(),
+        median(a_far.clone()) / median(a_near.clone())
+    );
+}
+
+fn median(mut a: Vec<f64>) -> f64 {
+    a.sort_by(f64::total_cmp);
+    a[a.len() / 2]
+}
+
+/// `--init lct` on one board of two albedos side by side (1 and 0.4, as a chart's bars on
+/// its board): the start's albedo holds at least half the contrast (the median over the
+/// columns at least 7.5 cm from the border; measured 0.62 for 0.4: the LCT's lateral blur at
+/// Wiener SNR 0.1 and the cosines it leaves out take a third of it, which the fit's albedo
+/// stages are left to restore). An albedo of ones (no contrast) fails.
+#[test]
+fn lct_start_holds_albedo_contrast_on_one_board() {
+    use umbra::fit::run::initial_mesh;
+    use umbra::fit::Init;
+    let s = SceneSpec {
+        scan: [16, 16],
+        scan_size: 0.8,
+        bins: 128,
+        bin_width: BIN,
+        start_opl: 0.8,
+        sigma_opl: None,
+        objects: vec![
+            (square_obj([-0.15, 0.0, 0.5], 0.3), 1.0, "lambertian"),
+            (square_obj([0.15, 0.0, 0.5], 0.3), 0.4, "lambertian"),
+        ],
+        model: "tri3",
+        render_extra: vec!["visibility = \"none\"".into()],
+        ..SceneSpec::default()
+    }
+    .scene();
+    let t = render(&s, Model::Tri3, 1, 0);
+    let mesh = initial_mesh(&s, &t.data, 0, &Init::Lct).unwrap();
+    let side = |sign: f64| -> Vec<f64> {
+        (0..mesh.vertices.len())
+            .filter(|&v| sign * mesh.vertices[v][0] >= 0.075)
+            .map(|v| mesh.vertex_values[v])
+            .collect()
+    };
+    let (bright, dark) = (side(-1.0), side(1.0));
+    assert!(
+        bright.len() >= 4 && dark.len() >= 4,
+        "{} and {} vertices",
+        bright.len(),
+        dark.len()
+    );
+    let ratio = median(dark) / median(bright);
+    eprintln!("LCT start on one board: albedo 0.4 / 1 starts at {ratio:.3}");
+    assert!(
+        1.0 - ratio >= 0.5 * (1.0 - 0.4),
+        "albedo contrast {ratio}, true 0.4"
+    );
+}

@@ -22,8 +22,8 @@ use super::seen::{finite_max, SeenSurface, WallView};
 use crate::error::Result;
 use crate::io::plot::{labelled_maps, MapPanel};
 use crate::recon::{
-    backproject_with, depth_map, depth_map_mesh, BackprojectOptions, DepthMap, Falloff,
-    MeshOptions, Volume, VoxelGrid, WallFrame,
+    backproject_with, depth_map, depth_map_mesh, peak_map, peak_mesh, BackprojectOptions, DepthMap,
+    Falloff, MeshOptions, Volume, VoxelGrid, WallFrame,
 };
 use crate::scene::{CaptureType, Scene};
 use optim::Mesh;
@@ -87,25 +87,87 @@ pub fn backprojection_mesh(scene: &Scene, measured: &[f32], first_bin: usize) ->
         &WallFrame::of(scene),
         &MeshOptions {
             smooth_iterations: 2,
+            ..MeshOptions::default()
         },
     )?;
     Ok(super::fit_mesh(&m))
 }
 
-/// The initial mesh of `Init::Lct`: the height field over the filled columns of the
-/// light-cone transform's depth map, one column per scan point, over the depths the fitted
-/// bins see (`recon::lct`, confocal captures only).
+/// Umbra's LCT of `measured` on `grid` as the fit shows and starts from it: Wiener SNR 0.1
+/// (the studies' figures), on the capture less each point's floor (`recon::subtract_floor`;
+/// the bins before `first_bin` stay zero): without that, the floor, weighted by `r³`, is
+/// the brightest thing at the far end of every column.
+fn lct_volume(
+    scene: &Scene,
+    measured: &[f32],
+    first_bin: usize,
+    grid: &VoxelGrid,
+) -> Result<Volume> {
+    let mut data = measured.to_vec();
+    let bins = scene.film.temporal_bins as usize;
+    crate::recon::subtract_floor(&mut data, bins);
+    crate::recon::zero_bins_before(&mut data, bins, first_bin);
+    crate::recon::lct(scene, &data, grid, &crate::recon::LctOptions { snr: 0.1 })
+}
+
+/// Depth peaks of one column closer than this (m) are one surface ([`lct_mesh`]).
+const LCT_START_SEPARATION: f32 = 0.15;
+
+/// Neighbouring columns' peaks further apart in depth than this (m) are not one surface
+/// ([`lct_mesh`]; less than half the separation, `recon::peak_mesh`).
+const LCT_START_MAX_STEP: f32 = 0.05;
+
+/// The LCT start has at most this many columns a side (the LCT's columns averaged in
+/// blocks): its edges then match a plane start's after the schedule's first remesh, so a
+/// fit from it costs what one from a plane does.
+const LCT_START_COLUMNS: u32 = 16;
+
+/// Sheets of fewer quads than this fraction of the largest's are noise ([`lct_mesh`]).
+const LCT_START_MIN_SHEET: f32 = 0.1;
+
+/// The LCT's brightness as albedo: each voxel over its depth. The LCT's volume
+/// `ρ(x, z) = 2z ρ̃(x, z²)` is sampled uniformly in `z²`, so a surface's peak grows as its
+/// depth times its albedo (where the capture's blur is within one sample). Measured on two
+/// fronto-parallel squares of albedo 1 and 0.5 at 0.5 and 0.85 m (tests/recon_wave.rs):
+/// 0.56 for 0.5 (the peak alone: 0.94; the volume integrated across each peak: 0.18).
+/// A far object is then not taken for brighter than a near one: `s_u`'s S, half its U's
+/// LCT brightness, passes the threshold that keeps the noise out.
+fn over_depth(volume: &mut Volume) {
+    let nz = volume.grid.dims[2];
+    let depths: Vec<f32> = (0..nz).map(|k| volume.grid.center(0, 0, k).z).collect();
+    for col in volume.data.chunks_exact_mut(nz) {
+        for (v, z) in col.iter_mut().zip(&depths) {
+            *v /= z.max(1e-3);
+        }
+    }
+}
+
+/// The initial mesh of `Init::Lct`, what the light-cone transform sees: surfaces at up to
+/// two depths per column (`s_u`'s S in front of its U), each meshed on its own over the
+/// columns where it stands out (`recon::peak_map`, `recon::peak_mesh`), with the LCT's
+/// brightness over depth ([`over_depth`]) as each vertex's albedo (relative to the median: the fit's scale carries the
+/// rest). The LCT (`recon::lct`, one column per scan point, over the depths the fitted bins
+/// see, Wiener SNR 0.1 as the study's figures use) runs on the capture less each point's
+/// floor (`recon::subtract_floor`; the bins before the first fitted one stay zero): without it the floor, weighted by `r³`, is the
+/// brightest thing at the far end of every column. Confocal captures only.
 pub fn lct_mesh(scene: &Scene, measured: &[f32], first_bin: usize) -> Result<Mesh> {
     let dims = [scene.scan.nx as usize, scene.scan.ny as usize, 256];
     let grid = fitted_grid(scene, first_bin, dims)?;
-    let volume = crate::recon::lct(scene, measured, &grid, &crate::recon::LctOptions::default())?;
-    let depth = depth_map(&volume, DEPTH_THRESHOLD)?;
-    let m = depth_map_mesh(
-        &depth,
+    let volume = lct_volume(scene, measured, first_bin, &grid)?;
+    let pool = scene.scan.nx.max(scene.scan.ny).div_ceil(LCT_START_COLUMNS) as usize;
+    let mut volume = volume.pooled(pool);
+    let grid = volume.grid.clone();
+    over_depth(&mut volume);
+    let peaks = peak_map(&volume, DEPTH_THRESHOLD, LCT_START_SEPARATION, 2)?;
+    let m = peak_mesh(
+        &peaks,
         &grid,
         &WallFrame::of(scene),
         &MeshOptions {
             smooth_iterations: 2,
+            max_step: Some(LCT_START_MAX_STEP),
+            albedo: true,
+            min_sheet_fraction: LCT_START_MIN_SHEET,
         },
     )?;
     Ok(super::fit_mesh(&m))
@@ -123,7 +185,7 @@ fn reference(
     let (w, h) = (view.width, view.height);
     if scene.capture == CaptureType::Confocal && w * h <= LCT_MAX_COLUMNS {
         let grid = view.grid([w, h], z_min, z_max, 256)?;
-        match crate::recon::lct(scene, measured, &grid, &crate::recon::LctOptions::default()) {
+        match lct_volume(scene, measured, first_bin, &grid) {
             Ok(volume) => return Ok(("LCT", volume)),
             Err(e) => eprintln!(
                 "umbra fit: warning: reconstruction.png shows the backprojection: the LCT cannot run: {e}"

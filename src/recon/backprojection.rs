@@ -299,6 +299,20 @@ pub fn zero_bins_before(data: &mut [f32], bins: usize, first: usize) {
     }
 }
 
+/// Each histogram of `bins` bins less the mean of its last tenth (a capture's floor of dark
+/// counts and ambient light, which the LCT's `r³` weight would otherwise make the
+/// brightest thing at the far end of every column).
+pub fn subtract_floor(data: &mut [f32], bins: usize) {
+    if bins == 0 {
+        return;
+    }
+    let tail = (bins / 10).max(1);
+    for h in data.chunks_exact_mut(bins) {
+        let floor = h[bins - tail..].iter().map(|&v| v as f64).sum::<f64>() / tail as f64;
+        h.iter_mut().for_each(|v| *v -= floor as f32);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

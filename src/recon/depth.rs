@@ -13,6 +13,7 @@
 //! A height field over the wall always faces it: each triangle's normal has the sign of
 //! its area projected on the wall.
 
+use super::surfaces::{peak_mesh, refined_depth, MeshOptions, PeakMap};
 use super::{Volume, VoxelGrid, WallFrame};
 use crate::error::{Error, Result};
 use crate::geometry::mesh::TriMesh;
@@ -87,15 +88,7 @@ pub fn depth_map(volume: &Volume, threshold: f32) -> Result<DepthMap> {
         if v <= 0.0 || v < threshold * global {
             continue;
         }
-        let mut off = 0.0;
-        if k > 0 && k + 1 < nz {
-            let (a, c) = (col[k - 1], col[k + 1]);
-            let den = a - 2.0 * v + c;
-            if den < 0.0 {
-                off = (0.5 * (a - c) / den).clamp(-0.5, 0.5);
-            }
-        }
-        depth[i] = g.min.z + (k as f32 + 0.5 + off) * dz;
+        depth[i] = refined_depth(col, k, g.min.z, dz);
     }
     Ok(DepthMap {
         depth,
@@ -105,160 +98,17 @@ pub fn depth_map(volume: &Volume, threshold: f32) -> Result<DepthMap> {
     })
 }
 
-/// Options of [`depth_map_mesh`].
-#[derive(Clone, Copy, Debug, PartialEq, Default)]
-pub struct MeshOptions {
-    /// Rounds of smoothing of the depths before meshing: each non-empty column moves
-    /// halfway to the mean of its non-empty 4-neighbours. 0 keeps the recovered depths.
-    pub smooth_iterations: usize,
-}
-
-/// Removes quads (by lower-left column) until no two of them touch at a corner only: two
-/// quads meeting diagonally at a column with neither of the other two quads around it
-/// would make that vertex non-manifold (two fans), which the fit's remesher refuses. Of
-/// such a pair, the one further up the scan goes; repeated until none is left.
-fn drop_bowties(quads: &mut Vec<(usize, usize)>, nx: usize, ny: usize) {
-    let mut has = vec![false; nx * ny];
-    for &(ix, iy) in quads.iter() {
-        has[iy * nx + ix] = true;
-    }
-    loop {
-        let mut dropped = false;
-        for y in 1..ny.saturating_sub(1) {
-            for x in 1..nx.saturating_sub(1) {
-                // the four quads around column (x, y): lower-left (x-1, y-1), lower-right
-                // (x, y-1), upper-left (x-1, y), upper-right (x, y)
-                let q = |x: usize, y: usize| has[y * nx + x];
-                let (ll, lr, ul, ur) = (q(x - 1, y - 1), q(x, y - 1), q(x - 1, y), q(x, y));
-                if ll && ur && !lr && !ul {
-                    has[y * nx + x] = false;
-                    dropped = true;
-                } else if lr && ul && !ll && !ur {
-                    has[y * nx + x - 1] = false;
-                    dropped = true;
-                }
-            }
-        }
-        if !dropped {
-            break;
-        }
-    }
-    quads.retain(|&(ix, iy)| has[iy * nx + ix]);
-}
-
-/// A wall-facing height field over the non-empty columns of `dm` (see the module doc),
-/// in world space through `frame`. `grid` is the grid the depth map came from. Errors if
-/// no 2 x 2 block of neighbouring columns is non-empty; blocks that touch another at a
-/// corner only are dropped ([`drop_bowties`]), so the mesh is manifold.
+/// A wall-facing height field over the non-empty columns of `dm`, in world space through
+/// `frame` (one peak per column: [`super::peak_mesh`], which says how). `grid` is the grid
+/// the depth map came from. Errors if no 2 x 2 block of neighbouring columns is non-empty;
+/// blocks that touch another at a corner only are dropped, so the mesh is manifold.
 pub fn depth_map_mesh(
     dm: &DepthMap,
     grid: &VoxelGrid,
     frame: &WallFrame,
     opts: &MeshOptions,
 ) -> Result<TriMesh> {
-    let (nx, ny) = (dm.nx, dm.ny);
-    if grid.dims[0] != nx || grid.dims[1] != ny || dm.depth.len() != nx * ny {
-        return Err(Error::Invalid(format!(
-            "depth-map mesh: the depth map is {nx} x {ny} but the grid is {:?}",
-            grid.dims
-        )));
-    }
-    let depth = smooth(dm, opts.smooth_iterations);
-    let filled = |ix: usize, iy: usize| depth[iy * nx + ix].is_finite();
-    // Squares of four non-empty columns, by their lower-left column.
-    let mut quads = Vec::new();
-    for iy in 0..ny.saturating_sub(1) {
-        for ix in 0..nx.saturating_sub(1) {
-            if filled(ix, iy) && filled(ix + 1, iy) && filled(ix, iy + 1) && filled(ix + 1, iy + 1)
-            {
-                quads.push((ix, iy));
-            }
-        }
-    }
-    drop_bowties(&mut quads, nx, ny);
-    if quads.is_empty() {
-        return Err(Error::Invalid(format!(
-            "depth-map mesh: no 2 x 2 block of neighbouring columns is above the threshold ({} of {} columns are): lower the threshold or check the reconstruction",
-            dm.filled(),
-            nx * ny
-        )));
-    }
-    // Vertices for the columns the quads use, in column order.
-    let mut vid = vec![u32::MAX; nx * ny];
-    for &(ix, iy) in &quads {
-        for (x, y) in [(ix, iy), (ix + 1, iy), (ix, iy + 1), (ix + 1, iy + 1)] {
-            vid[y * nx + x] = 0;
-        }
-    }
-    let mut positions = Vec::new();
-    for iy in 0..ny {
-        for ix in 0..nx {
-            let i = iy * nx + ix;
-            if vid[i] == 0 {
-                vid[i] = positions.len() as u32;
-                let c = grid.center(ix, iy, 0);
-                positions.push(frame.to_world(Vec3::new(c.x, c.y, depth[i])));
-            }
-        }
-    }
-    let mut triangles = Vec::with_capacity(2 * quads.len());
-    for &(ix, iy) in &quads {
-        let at = |x: usize, y: usize| (vid[y * nx + x], depth[y * nx + x]);
-        let ((a, za), (b, zb)) = (at(ix, iy), at(ix + 1, iy));
-        let ((c, zc), (d, zd)) = (at(ix + 1, iy + 1), at(ix, iy + 1));
-        // Counter-clockwise seen from the wall side (normal toward -z in the wall
-        // frame); split along the diagonal with the smaller depth step.
-        if (za - zc).abs() <= (zb - zd).abs() {
-            triangles.push([a, c, b]);
-            triangles.push([a, d, c]);
-        } else {
-            triangles.push([a, d, b]);
-            triangles.push([b, d, c]);
-        }
-    }
-    Ok(TriMesh {
-        positions,
-        triangles,
-        vertex_albedo: None,
-    })
-}
-
-/// The depths after `iterations` rounds of neighbour averaging (empty columns stay empty).
-fn smooth(dm: &DepthMap, iterations: usize) -> Vec<f32> {
-    let (nx, ny) = (dm.nx, dm.ny);
-    let mut d = dm.depth.clone();
-    let mut next = d.clone();
-    for _ in 0..iterations {
-        for iy in 0..ny {
-            for ix in 0..nx {
-                let i = iy * nx + ix;
-                if !d[i].is_finite() {
-                    continue;
-                }
-                let mut sum = 0.0;
-                let mut n = 0;
-                let neighbours = [
-                    (ix > 0).then(|| i - 1),
-                    (ix + 1 < nx).then(|| i + 1),
-                    (iy > 0).then(|| i - nx),
-                    (iy + 1 < ny).then(|| i + nx),
-                ];
-                for j in neighbours.into_iter().flatten() {
-                    if d[j].is_finite() {
-                        sum += d[j];
-                        n += 1;
-                    }
-                }
-                next[i] = if n > 0 {
-                    0.5 * d[i] + 0.5 * sum / n as f32
-                } else {
-                    d[i]
-                };
-            }
-        }
-        std::mem::swap(&mut d, &mut next);
-    }
-    d
+    peak_mesh(&PeakMap::from_depth_map(dm), grid, frame, opts)
 }
 
 /// The first hidden surface along the wall normal from the wall point `(x, y)` of the
@@ -307,32 +157,5 @@ pub fn surface_depth_map(
         intensity,
         nx,
         ny,
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Quads (by lower-left column) meeting at one corner only, as the letter's
-    /// backprojection start had: one of the pair goes, so every vertex has one fan of
-    /// faces; three quads around a vertex are one fan and stay.
-    #[test]
-    fn quads_touching_at_a_corner_only_are_not_kept_both() {
-        let (nx, ny) = (5, 5);
-        for (pair, kept) in [
-            (vec![(0, 0), (1, 1)], vec![(0, 0)]),
-            (vec![(1, 0), (0, 1)], vec![(1, 0)]),
-            (vec![(0, 0), (1, 0), (1, 1)], vec![(0, 0), (1, 0), (1, 1)]),
-            (vec![(0, 0), (2, 2)], vec![(0, 0), (2, 2)]),
-        ] {
-            let mut quads = pair.clone();
-            drop_bowties(&mut quads, nx, ny);
-            assert_eq!(quads, kept, "{pair:?}");
-        }
-        // a diagonal chain: each removal can expose no new corner-only contact
-        let mut chain: Vec<_> = (0..4).map(|i| (i, i)).collect();
-        drop_bowties(&mut chain, nx, ny);
-        assert_eq!(chain, vec![(0, 0), (2, 2)]);
     }
 }

@@ -56,15 +56,17 @@ mod image;
 mod lct;
 mod method;
 mod phasor;
+mod surfaces;
 
-pub use backprojection::{backproject, backproject_with, downsample_time, zero_bins_before};
-pub use depth::{
-    depth_map, depth_map_mesh, first_surface, surface_depth_map, DepthMap, MeshOptions,
+pub use backprojection::{
+    backproject, backproject_with, downsample_time, subtract_floor, zero_bins_before,
 };
+pub use depth::{depth_map, depth_map_mesh, first_surface, surface_depth_map, DepthMap};
 pub use image::{write_comparison_png, write_depth_png, write_volume_png};
 pub use lct::{lct, LctOptions};
 pub use method::{reconstruct, volume_surface, Method};
 pub use phasor::{phasor_field, PhasorOptions};
+pub use surfaces::{peak_map, peak_mesh, MeshOptions, Peak, PeakMap};
 
 use crate::error::{Error, Result};
 use crate::io::lct::LctCapture;
@@ -226,6 +228,37 @@ impl Volume {
         let nz = self.grid.dims[2];
         let i = self.grid.index(ix, iy, 0);
         &self.data[i..i + nz]
+    }
+
+    /// The volume on columns `factor` x `factor` times as wide, each the mean of the
+    /// columns it covers (columns left over at the high `x` or `y` edge are dropped, the
+    /// grid shrunk to match): a coarser lateral sampling of the same depths.
+    pub fn pooled(&self, factor: usize) -> Volume {
+        let f = factor.max(1);
+        let [nx, ny, nz] = self.grid.dims;
+        let (cx, cy) = ((nx / f).max(1), (ny / f).max(1));
+        let size = self.grid.voxel_size();
+        let (fx, fy) = (f.min(nx), f.min(ny));
+        let grid = VoxelGrid {
+            min: self.grid.min,
+            max: Vec3::new(
+                self.grid.min.x + (cx * fx) as f32 * size.x,
+                self.grid.min.y + (cy * fy) as f32 * size.y,
+                self.grid.max.z,
+            ),
+            dims: [cx, cy, nz],
+        };
+        let mut data = vec![0.0f32; grid.len()];
+        let w = 1.0 / (fx * fy) as f32;
+        for iy in 0..cy * fy {
+            for ix in 0..cx * fx {
+                let out = grid.index(ix / fx, iy / fy, 0);
+                for (o, v) in data[out..out + nz].iter_mut().zip(self.column(ix, iy)) {
+                    *o += w * v;
+                }
+            }
+        }
+        Volume { grid, data }
     }
 }
 

@@ -178,7 +178,7 @@ pub fn recon(args: ReconArgs, scene: Scene) -> Result<()> {
                 let first = first_fitted_bin(&scene, args.ignore_before);
                 umbra::recon::zero_bins_before(&mut data, scene.film.temporal_bins as usize, first);
                 if args.subtract_floor {
-                    subtract_floor(&mut data, scene.film.temporal_bins as usize);
+                    umbra::recon::subtract_floor(&mut data, scene.film.temporal_bins as usize);
                 }
                 let method = method(&args, &scene)?;
                 let volume = reconstruct(&scene, &data, &grid, &method)?;
@@ -286,15 +286,6 @@ fn method(args: &ReconArgs, scene: &Scene) -> Result<Method> {
         )));
     }
     Ok(m)
-}
-
-/// Each histogram less the mean of its last tenth of bins.
-fn subtract_floor(data: &mut [f32], bins: usize) {
-    let tail = (bins / 10).max(1);
-    for h in data.chunks_exact_mut(bins) {
-        let floor = h[bins - tail..].iter().map(|&v| v as f64).sum::<f64>() / tail as f64;
-        h.iter_mut().for_each(|v| *v -= floor as f32);
-    }
 }
 
 /// A `(ny, nx, nz)` volume on `grid`, finite.

@@ -502,7 +502,7 @@ fn a_measurement_of_nothing_is_refused_and_a_fit_of_nothing_warns() {
     let mut r = FitRequest::new(Measurement::Array(bright), d.join("bright"));
     r.known_scale = true;
     r.background = Some(umbra::fit::Background::None);
-    r.init = "scene".into();
+    r.init = Some("scene".into());
     r.schedule = Some(
         umbra::fit::request::parse_schedule("[[stage]]\niters = 1\nlr = 0.001\n", Path::new("s"))
             .unwrap(),

@@ -38,7 +38,7 @@ fn mesh_dict<'py>(py: Python<'py>, m: &optim::Mesh) -> PyResult<Bound<'py, PyDic
 /// returned.
 #[pyfunction]
 #[pyo3(signature = (
-    scene, measured, output, *, init = "plane", schedule = None, iters = None, resume = false,
+    scene, measured, output, *, init = None, schedule = None, iters = None, resume = false,
     model = "tri3", spp = 16, known_scale = false, background = None, likelihood = None, jitter = None, irf = None,
     time_offset = None, reflectance = None, retro_falloff = None, ignore_before = None, truth = false, bin = None,
     target_spp = 4096, threads = None, progress = None, boundary_terms = None
@@ -49,7 +49,7 @@ pub fn fit<'py>(
     scene: &Bound<'py, PyScene>,
     measured: Option<&Bound<'py, PyAny>>,
     output: PathBuf,
-    init: &str,
+    init: Option<String>,
     schedule: Option<String>,
     iters: Option<u64>,
     resume: bool,
@@ -104,7 +104,7 @@ pub fn fit<'py>(
         .map_err(|e| UmbraError::new_err(format!("background: {e}")))?;
     let req = FitRequest {
         front: Front::Python,
-        init: init.to_string(),
+        init,
         schedule,
         iters,
         resume,

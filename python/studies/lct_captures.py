@@ -6,8 +6,8 @@ same capture (issue 20; docs/BASELINES.md).
     .venv/bin/python python/studies/lct_captures.py [--captures diffuse_s,...]
         [--models lambertian,retroreflective] [--out out/lct_captures] [--docs docs]
 
-Per capture and model: `umbra fit scenes/lct.toml --measured data_X.mat --init plane`
-(the documented command, no other flags; the defaults of docs/FITTING.md: bins before OPL
+Per capture and model: `umbra fit scenes/lct.toml --measured data_X.mat` (the documented
+command, no other flags; `--init` only when given here; the defaults of docs/FITTING.md: bins before OPL
 0.72 m left out, 8,2 binning, the capture model calibrated from the capture: a response
 with tails, a gain field, a floor and the direct tails per scan point, Poisson deviance),
 `--reflectance retroreflective` for the retroreflective model, with the sheeting's angular
@@ -17,7 +17,8 @@ relative L2 kept for the final fit. The reconstructions: `umbra recon --method l
 --subtract-floor --snr 0.1` on 64 x 64 x 256 voxels over 0.2-1.2 m, and y-tal's fk
 (ytal_recon.py) of the same preprocessed capture (`umbra convert --ignore-before 0.72
 --time-bin 8`) on the same grid, both shown as front maximum projections over the depths
-where the papers place the objects (0.25-0.9 m), next to the fit's albedo and depth seen
+where the papers place the objects (0.25-0.9 m; 0.25-1.15 m for s_u, whose U stands at
+1.02 m), next to the fit's albedo and depth seen
 from the wall (`umbra recon --mesh mesh_all.obj` on the same columns: every fitted face,
 dark ones too, since albedo is what shows a chart's bars).
 """
@@ -46,6 +47,8 @@ def grid(capture):
     n = SCAN.get(capture, 64)
     return ["--grid", f"{n},{n},256", "--depths", "0.2,1.2"]
 SHOW = (0.25, 0.9)
+# Depths shown per capture where the objects stand further (s_u's U at 1.02 m).
+SHOW_AT = {"s_u": (0.25, 1.15)}
 
 
 # The retroreflective model's angular falloff exponents tried per capture (cos^m).
@@ -57,7 +60,7 @@ def fit_only(capture, model, d, init, falloff=None):
     shutil.rmtree(d, ignore_errors=True)
     mat = os.path.join(DATA, f"data_{capture}.mat")
     cmd = [UMBRA, "fit", os.path.join(ROOT, "scenes", "lct.toml"), "--measured", mat,
-           "--init", init, "-q", "-o", d]
+           *(["--init", init] if init else []), "-q", "-o", d]
     if model == "retroreflective":
         cmd += ["--reflectance", "retroreflective"]
         if falloff is not None:
@@ -134,9 +137,10 @@ def picture(path, capture, lct_dir, fk_vol, fits):
     g = read_toml(os.path.join(lct_dir, "summary.toml"))
     nz = g["grid_dims"][2]
     z = g["grid_min"][2] + (np.arange(nz) + 0.5) * (g["grid_max"][2] - g["grid_min"][2]) / nz
-    panels = [("LCT (Umbra)", *front(np.load(os.path.join(lct_dir, "volume.npy")), z))]
+    show = SHOW_AT.get(capture, SHOW)
+    panels = [("LCT (Umbra)", *front(np.load(os.path.join(lct_dir, "volume.npy")), z, show))]
     if fk_vol:
-        panels.append(("f-k (y-tal)", *front(np.load(fk_vol), z)))
+        panels.append(("f-k (y-tal)", *front(np.load(fk_vol), z, show)))
     cols = len(panels) + 2 * len(fits)
     fig, axes = plt.subplots(1, cols, figsize=(2.4 * cols, 2.8))
     axes = np.atleast_1d(axes)
@@ -150,8 +154,8 @@ def picture(path, capture, lct_dir, fk_vol, fits):
         ax_a, ax_d = axes[len(panels) + 2 * i], axes[len(panels) + 2 * i + 1]
         ax_a.imshow(np.nan_to_num(a, nan=0.0), cmap="magma", vmin=0.0, vmax=top)
         ax_a.set_title(f"fit albedo, {model}\nrelative L2 {l2:.3f}", fontsize=8)
-        ax_d.imshow(d, cmap="viridis", vmin=SHOW[0], vmax=SHOW[1])
-        ax_d.set_title(f"fit depth\n{SHOW[0]}-{SHOW[1]} m", fontsize=8)
+        ax_d.imshow(d, cmap="viridis", vmin=show[0], vmax=show[1])
+        ax_d.set_title(f"fit depth\n{show[0]}-{show[1]} m", fontsize=8)
     for ax in axes:
         ax.set_xticks([])
         ax.set_yticks([])
@@ -164,7 +168,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--captures", default=",".join(CAPTURES))
     ap.add_argument("--models", default="lambertian")
-    ap.add_argument("--init", default="plane", help="umbra fit --init (default plane)")
+    ap.add_argument("--init", default=None,
+                    help="umbra fit --init (default: none given, the fit's own: the LCT start)")
     ap.add_argument("--out", default=os.path.join(ROOT, "out", "lct_captures"))
     ap.add_argument("--docs", default=os.path.join(ROOT, "docs"))
     args = ap.parse_args(argv)
@@ -208,7 +213,8 @@ def main(argv=None):
                 f.write(f"| {c} | {m} | {fm} | {l2:.3f} | {floor:.3f} | {ratio} | "
                         f"{num('deviance_per_bin')} | {num('held_out_loss')} | {sigma} | "
                         f"{tails or 'none'} | {s['seconds']:.0f} |\n")
-            f.write(f"\n(`umbra fit --init {args.init}`; fit time is all starts together.)\n")
+            start = f"--init {args.init}" if args.init else "with its default start (the LCT's surfaces)"
+            f.write(f"\n(`umbra fit` {start}; fit time is all starts together.)\n")
             if sweeps:
                 f.write("\nThe retroreflective model's falloff, fits from a plane (relative L2):\n\n")
                 f.write("| capture | " + " | ".join(f"m = {m}" for m in FALLOFFS) + " |\n")

@@ -147,7 +147,7 @@ def _schedule_toml(stages: Sequence[Mapping[str, Any]]) -> str:
 
 
 def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
-        output: Optional[PathLike] = None, init: str = "plane",
+        output: Optional[PathLike] = None, init: Optional[str] = None,
         schedule: Union[None, PathLike, Sequence[Mapping[str, Any]]] = None,
         iters: Optional[int] = None, resume: bool = False, model: str = "tri3", spp: int = 16,
         known_scale: bool = False, background: Optional[str] = None,
@@ -180,7 +180,8 @@ def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
     ``sphere``, ``scene``, ``backprojection``, ``lct`` (confocal) or ``auto`` (fits from a
     plane, a sphere and a reconstruction's depth map, the LCT's for confocal captures, the
     backprojection's otherwise; keeps the lowest loss, a later start of the three within
-    1 % of it winning). ``retro_falloff``: a retroreflective surface's angular falloff
+    1 % of it winning); default (None) ``lct`` for a Stanford ``.mat`` capture, ``plane``
+    otherwise. ``retro_falloff``: a retroreflective surface's angular falloff
     exponent ``m`` (its return scaled by ``cos^m`` of the entrance angle; 0 to 16, default
     the scene object's ``retro_falloff``, else 0).
 

@@ -133,7 +133,7 @@ def fit(
     measured: Union[None, str, os.PathLike[str], npt.ArrayLike],
     output: Union[str, os.PathLike[str]],
     *,
-    init: str = "plane",
+    init: Optional[str] = None,
     schedule: Optional[str] = None,
     iters: Optional[int] = None,
     resume: bool = False,

@@ -1,5 +1,6 @@
 //! Initial meshes for a fit: a plane or a sphere in front of the wall, centred on the
-//! scan area, at the depth the measurement's first strong returns imply.
+//! scan area, at the depth the measurement's first strong returns imply; and the start a
+//! fit takes when none is asked for ([`default_init`]).
 //!
 //! Depth: the OPL `τ₅₀` at which the transient summed over all scan points first reaches
 //! half its maximum above the background (the median of the summed transient over the
@@ -13,6 +14,9 @@ use crate::geometry::shapes::icosphere;
 use crate::scene::Scene;
 use glam::Vec3;
 use optim::Mesh;
+use std::path::Path;
+
+use super::Measurement;
 
 /// Distance of the hidden scene from the wall implied by `measured` (m).
 pub fn depth_from_data(scene: &Scene, measured: &[f32]) -> Option<f32> {
@@ -86,10 +90,39 @@ pub fn sphere(scene: &Scene, depth: f32, radius: f32, level: u32) -> Mesh {
     super::fit_mesh(&icosphere(c + (depth + radius) * normal, radius, level))
 }
 
+/// A Stanford LCT capture (`.mat`): confocal, counts, its geometry in the file.
+pub fn is_lct_capture(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("mat"))
+}
+
+/// The start when none is asked for: the LCT's surfaces for a Stanford `.mat` capture
+/// (what a classical reconstruction of it sees: several objects at their depths, their
+/// albedo; `fit::reconstruction::lct_mesh`, issue 48), a plane otherwise.
+pub fn default_init(measurement: &Measurement) -> &'static str {
+    match measurement {
+        Measurement::File(p) if is_lct_capture(p) => "lct",
+        _ => "plane",
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::scene::default::default_scene;
+
+    /// With no `--init`, a Stanford capture starts from what its LCT sees, anything else
+    /// from a plane.
+    #[test]
+    fn the_default_start_is_the_lct_for_stanford_captures() {
+        let file = |p: &str| Measurement::File(p.into());
+        assert_eq!(default_init(&file("data/data_s_u.mat")), "lct");
+        assert_eq!(default_init(&file("DATA_S_U.MAT")), "lct");
+        for other in ["capture.npy", "capture.hdf5", "mat"] {
+            assert_eq!(default_init(&file(other)), "plane", "{other}");
+        }
+        assert_eq!(default_init(&Measurement::Demo { target_spp: 16 }), "plane");
+    }
 
     #[test]
     fn depth_ignores_a_constant_background() {

@@ -69,7 +69,8 @@ pub struct FitRequest {
     /// plane, sphere, scene (the scene's hidden objects), backprojection, lct, or auto
     /// (fits from a plane, a sphere and the LCT, confocal, or the backprojection,
     /// otherwise; keeps the lowest loss, a later start within [`super::starts::AUTO_LOSS_MARGIN`]).
-    pub init: String,
+    /// `None`: lct for a Stanford `.mat` capture, plane otherwise ([`super::init::default_init`]).
+    pub init: Option<String>,
     /// The stages (default [`default_schedule`]).
     pub schedule: Option<Schedule>,
     /// Total iterations, shared among the stages in the schedule's proportions.
@@ -117,7 +118,7 @@ impl FitRequest {
             front: Front::Cli,
             measurement,
             output,
-            init: "plane".into(),
+            init: None,
             schedule: None,
             iters: None,
             resume: false,
@@ -302,7 +303,11 @@ pub fn run(
         })?;
     // `--init auto` fits from each start in its own folder (`fit::starts`); the first
     // one's (the plane's) checkpoint is the one a resume needs.
-    let auto = req.init == "auto";
+    let init = req
+        .init
+        .clone()
+        .unwrap_or_else(|| super::init::default_init(&req.measurement).to_string());
+    let auto = init == "auto";
     let checkpoint_dir = if auto {
         start_dir(&req.output, "plane").join("checkpoint")
     } else {
@@ -367,7 +372,7 @@ pub fn run(
         }
     };
     let demo = matches!(req.measurement, Measurement::Demo { .. });
-    let is_lct = file.is_some_and(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("mat")));
+    let is_lct = file.is_some_and(super::init::is_lct_capture);
     let lct_default = is_lct.then_some(600.0 * crate::io::lct::LCT_BIN_OPL);
     let bin = req.bin.unwrap_or(if is_lct { (8, 2) } else { (1, 1) });
     if bin.0 == 0 || bin.1 == 0 {
@@ -401,7 +406,7 @@ pub fn run(
     super::objective::check_ignore_before(&scene.film, req.ignore_before, &n("ignore_before"))?;
     let noise_floor =
         counts.then(|| photon_noise_floor(&scene, &measured, bin.1, ignore_before_opl));
-    let starts: Vec<(&str, Init)> = match req.init.as_str() {
+    let starts: Vec<(&str, Init)> = match init.as_str() {
         "plane" => vec![("plane", Init::Plane)],
         "sphere" => vec![("sphere", Init::Sphere)],
         "scene" => vec![(
@@ -539,7 +544,7 @@ pub fn run(
         init: if auto {
             format!("auto: {chosen_name}")
         } else {
-            req.init.clone()
+            init.clone()
         },
         starts: starts_summary,
         failed_starts,

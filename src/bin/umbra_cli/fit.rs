@@ -31,9 +31,9 @@ pub struct FitArgs {
     /// (the same of the light-cone transform's; confocal captures), or auto: fits from a
     /// plane, a sphere and a reconstruction (the LCT, confocal; the backprojection,
     /// otherwise), each in OUTDIR/start-NAME, the lowest loss kept (a later start within
-    /// 1 % of it wins).
-    #[arg(long, default_value = "plane")]
-    pub init: String,
+    /// 1 % of it wins). Default: lct for a Stanford `.mat` capture, plane otherwise.
+    #[arg(long)]
+    pub init: Option<String>,
     /// Schedule TOML ([[stage]] tables: iters, solver, lr, large_steps, laplacian,
     /// fit_albedo, albedo_step, albedo_tv, remesh, time_downsample, scan_downsample, model, spp).
     #[arg(long)]

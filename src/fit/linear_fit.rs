@@ -477,10 +477,11 @@ fn solve(g: &[[f64; MAX_COLS]; MAX_COLS], r: &[f64; MAX_COLS], free: &[usize]) -
     Some(x.iter().zip(&d).map(|(x, d)| x * d).collect())
 }
 
-/// Poisson counts of the means `mu`, by Knuth's method on a linear congruential stream
-/// from `seed` (the tests' synthetic photon counts).
-#[cfg(test)]
-pub(crate) fn poisson_counts(mu: impl IntoIterator<Item = f64>, seed: u64) -> Vec<f32> {
+/// Poisson counts of the means `mu` (synthetic photon counts of a model, for tests and
+/// studies), by Knuth's method on a linear congruential stream from `seed`; a mean above
+/// 500 is drawn as the sum of draws of at most 500 each (Poisson counts add), so
+/// `exp(−μ)` never underflows. Deterministic for a seed.
+pub fn poisson_counts(mu: impl IntoIterator<Item = f64>, seed: u64) -> Vec<f32> {
     let mut state = seed;
     let mut uniform = || {
         state = state
@@ -488,15 +489,26 @@ pub(crate) fn poisson_counts(mu: impl IntoIterator<Item = f64>, seed: u64) -> Ve
             .wrapping_add(1442695040888963407);
         ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
     };
+    let mut draw = |m: f64| {
+        let (limit, mut k, mut p) = ((-m).exp(), 0u64, 1.0);
+        loop {
+            p *= uniform();
+            if p <= limit {
+                break k;
+            }
+            k += 1;
+        }
+    };
     mu.into_iter()
         .map(|m| {
-            let (limit, mut k, mut p) = ((-m).exp(), 0u32, 1.0);
+            let (mut left, mut total) = (m.max(0.0), 0u64);
             loop {
-                p *= uniform();
-                if p <= limit {
-                    break k as f32;
+                let part = left.min(500.0);
+                total += draw(part);
+                left -= part;
+                if left <= 0.0 {
+                    break total as f32;
                 }
-                k += 1;
             }
         })
         .collect()

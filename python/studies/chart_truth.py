@@ -9,7 +9,7 @@ return per scan point with its exponential tail, a floor, Poisson draws) and the
 is fitted by `umbra fit --background per-point --irf calibrate --likelihood poisson` and
 reconstructed by `umbra recon --method lct`.
 
-    UMBRA_BIN=/tmp/umbra_lct3 .venv/bin/python python/studies/chart_truth.py STEP [...]
+    .venv/bin/python python/studies/chart_truth.py STEP [...]   (UMBRA_BIN: another binary)
       STEP: render | measure | fit | lct | analyse | all
 
 Outputs in out/chart_truth/: scene_full.xml (the chart, for the record), scene_fit.xml

@@ -402,3 +402,67 @@ fn cli_init_auto_fits_every_start_and_keeps_the_rule_s_choice() {
     assert_eq!(std::fs::read(out.join("mesh.obj")).unwrap(), mesh);
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// `remesh_pitch` (a stage's remesh in scan pitches) becomes `remesh` in metres from the
+/// scan as fitted; given with `remesh` it is refused by name, and `optim::fit` refuses it
+/// unresolved rather than ignore it.
+#[test]
+fn remesh_in_scan_pitches_resolves_from_the_scan() {
+    use umbra::fit::run::{scan_pitch, with_scan_pitch};
+    let scene = small_scene();
+    let pitch = scan_pitch(&scene);
+    let s = &scene.scan;
+    let want =
+        f64::from(s.axis_u.length() / s.nx as f32).min(f64::from(s.axis_v.length() / s.ny as f32));
+    assert!(
+        (pitch - want).abs() < 1e-9 && pitch > 0.0,
+        "{pitch} against {want}"
+    );
+    let mut schedule = Schedule {
+        stages: vec![
+            stage(2, SolverKind::Adam, 0.01, 1, false),
+            Stage {
+                remesh_pitch: Some(1.5),
+                ..stage(2, SolverKind::Lbfgs, 0.0, 1, true)
+            },
+        ],
+        checkpoint_every: 5,
+    };
+    assert!(schedule.check().is_ok());
+    let resolved = with_scan_pitch(&schedule, &scene);
+    assert_eq!(resolved.stages[0].remesh, None);
+    assert_eq!(resolved.stages[1].remesh, Some(1.5 * pitch));
+    assert_eq!(resolved.stages[1].remesh_pitch, None);
+    schedule.stages[1].remesh = Some(0.01);
+    let e = schedule.check().unwrap_err();
+    assert!(e.contains("stage 1") && e.contains("remesh_pitch"), "{e}");
+    schedule.stages[1].remesh = None;
+    schedule.stages[1].remesh_pitch = Some(0.0);
+    assert!(schedule.check().unwrap_err().contains("remesh_pitch = 0"));
+    // unresolved, optim::fit refuses it
+    schedule.stages[1].remesh_pitch = Some(1.0);
+    struct Unreached;
+    impl optim::fit::ObjectiveFactory for Unreached {
+        fn objective(
+            &mut self,
+            _: &Stage,
+            _: usize,
+            _: &optim::Mesh,
+        ) -> Result<Box<dyn optim::MeshObjective>, String> {
+            Err("the refused schedule built an objective".into())
+        }
+    }
+    let start = initial_mesh(&scene, &target(&scene), 0, &Init::Plane).unwrap();
+    let e = optim::fit::fit(
+        &start,
+        &schedule,
+        &mut Unreached,
+        &|m: &optim::Mesh, _: f64| Ok(m.clone()),
+        &out_dir("remesh-pitch"),
+        false,
+        &optim::checkpoint::Identity { components: vec![] },
+        quiet(None),
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("remesh_pitch"), "{e}");
+}

@@ -255,6 +255,15 @@ pub fn fit(
     progress: Progress,
 ) -> Result<FitOutcome, FitError> {
     schedule.check().map_err(FitError::Schedule)?;
+    if let Some(i) = schedule
+        .stages
+        .iter()
+        .position(|s| s.remesh_pitch.is_some())
+    {
+        return Err(FitError::Schedule(format!(
+            "stage {i}: remesh_pitch is in scan pitches, which the caller must turn into remesh (m) before the fit"
+        )));
+    }
     let identity = &full_identity(identity, schedule, initial);
     let stage_path = dir.join("stage.bin");
     remove_stale_temporaries(dir);

@@ -66,6 +66,13 @@ pub struct Stage {
     /// when `remesh` is not given).
     #[serde(default)]
     pub remesh_factor: Option<f64>,
+    /// Remesh to this many scan pitches (the spacing of the fitted scan's points) before
+    /// the stage: per-vertex albedo then resolves what the scan does. Only the caller knows
+    /// the scan, so it turns this into `remesh` before the fit (`umbra::fit` does;
+    /// [`crate::fit::fit`] refuses it unresolved); not with `remesh`. Not serialized when
+    /// absent, so schedules without it keep their checkpoint identity.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub remesh_pitch: Option<f64>,
     /// Sum this many time bins of the measurement (and the render) into one.
     #[serde(default = "one")]
     pub time_downsample: u32,
@@ -96,6 +103,7 @@ impl Stage {
             albedo_tv: 0.0,
             remesh: None,
             remesh_factor: None,
+            remesh_pitch: None,
             time_downsample: one(),
             scan_downsample: one(),
             model: None,
@@ -211,9 +219,15 @@ impl Stage {
                 self.albedo_step
             ));
         }
+        if let (Some(e), Some(k)) = (self.remesh, self.remesh_pitch) {
+            return Err(format!(
+                "remesh = {e} and remesh_pitch = {k} both set: give the edge in metres or in scan pitches, not both"
+            ));
+        }
         for (name, v) in [
             ("remesh", self.remesh),
             ("remesh_factor", self.remesh_factor),
+            ("remesh_pitch", self.remesh_pitch),
         ] {
             if let Some(v) = v {
                 if !(v.is_finite() && v > 0.0) {

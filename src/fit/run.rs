@@ -350,6 +350,32 @@ pub fn initial_mesh(
     })
 }
 
+/// The spacing of `scene`'s scan points (m): the smaller of its two axes'.
+pub fn scan_pitch(scene: &Scene) -> f64 {
+    let s = &scene.scan;
+    let u = f64::from(s.axis_u.length()) / f64::from(s.nx.max(1));
+    let v = f64::from(s.axis_v.length()) / f64::from(s.ny.max(1));
+    match (s.nx > 1, s.ny > 1) {
+        (true, true) => u.min(v),
+        (true, false) => u,
+        (false, true) => v,
+        (false, false) => u.max(v),
+    }
+}
+
+/// `schedule` with every stage's `remesh_pitch` turned into `remesh`: that many
+/// [`scan_pitch`]es of `scene` (the scan as fitted, after `--bin`).
+pub fn with_scan_pitch(schedule: &Schedule, scene: &Scene) -> Schedule {
+    let pitch = scan_pitch(scene);
+    let mut out = schedule.clone();
+    for stage in &mut out.stages {
+        if let Some(k) = stage.remesh_pitch.take() {
+            stage.remesh = Some(k * pitch);
+        }
+    }
+    out
+}
+
 /// Isotropic remeshing between stages (`optim::remesh`): splits, collapses, flips and
 /// tangential relaxation to the target edge, boundary kept, per-vertex albedo carried.
 fn remesh(mesh: &Mesh, edge: f64) -> std::result::Result<Mesh, String> {
@@ -400,8 +426,8 @@ pub fn fit(
         )));
     }
     let measured = &measured[..];
-    let last_stage = cfg
-        .schedule
+    let schedule = with_scan_pitch(&cfg.schedule, &base);
+    let last_stage = schedule
         .stages
         .last()
         .ok_or_else(|| Error::Invalid("the fit schedule has no stage".into()))?;
@@ -415,7 +441,7 @@ pub fn fit(
     let dir = out.join("checkpoint");
     let outcome = optim::fit(
         &initial,
-        &cfg.schedule,
+        &schedule,
         &mut factory,
         &remesh,
         &dir,

@@ -35,7 +35,8 @@ pub struct FitArgs {
     #[arg(long)]
     pub init: Option<String>,
     /// Schedule TOML ([[stage]] tables: iters, solver, lr, large_steps, laplacian,
-    /// fit_albedo, albedo_step, albedo_tv, remesh, time_downsample, scan_downsample, model, spp).
+    /// fit_albedo, albedo_step, albedo_tv, remesh, remesh_factor, remesh_pitch, time_downsample,
+    /// scan_downsample, model, spp).
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Total iterations, shared among the stages in the schedule's proportions.

@@ -118,8 +118,9 @@ const LCT_START_SEPARATION: f32 = 0.15;
 const LCT_START_MAX_STEP: f32 = 0.05;
 
 /// The LCT start has at most this many columns a side (the LCT's columns averaged in
-/// blocks): its edges then match a plane start's after the schedule's first remesh, so a
-/// fit from it costs what one from a plane does.
+/// blocks), about as coarse as a plane start: from all 32 x 32 columns of a binned
+/// Stanford capture the start had 1900 faces, 10 000 after the schedule's first remesh,
+/// and a fit took 264 s (notes/capture-calibration.md §9).
 const LCT_START_COLUMNS: u32 = 16;
 
 /// Sheets of fewer quads than this fraction of the largest's are noise ([`lct_mesh`]).
@@ -129,7 +130,8 @@ const LCT_START_MIN_SHEET: f32 = 0.1;
 /// `ρ(x, z) = 2z ρ̃(x, z²)` is sampled uniformly in `z²`, so a surface's peak grows as its
 /// depth times its albedo (where the capture's blur is within one sample). Measured on two
 /// fronto-parallel squares of albedo 1 and 0.5 at 0.5 and 0.85 m (tests/recon_wave.rs):
-/// 0.56 for 0.5 (the peak alone: 0.94; the volume integrated across each peak: 0.18).
+/// the start's albedo 0.82 for 0.5 (the peak alone: 0.94; the volume integrated across
+/// each peak: 0.18): across depths only roughly, which the fit's albedo stages correct.
 /// A far object is then not taken for brighter than a near one: `s_u`'s S, half its U's
 /// LCT brightness, passes the threshold that keeps the noise out.
 fn over_depth(volume: &mut Volume) {

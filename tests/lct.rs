@@ -107,5 +107,20 @@ fn lct_scene_fit_starts_with_light() {
         rows[0][5]
     );
     assert!(rows.last().unwrap()[3] < rows[0][3], "{csv}");
+    // The capture model's coefficients are reported by name, the scale positive.
+    let summary: toml::Table = std::fs::read_to_string(out.join("summary.toml"))
+        .unwrap()
+        .parse()
+        .unwrap();
+    let nuisance = summary["nuisance"]
+        .as_table()
+        .expect("summary.toml [nuisance]");
+    assert!(nuisance["gain_1"].as_float().unwrap() > 0.0, "{nuisance:?}");
+    for key in ["gain_x", "floor_1", "floor_yy", "tail_1", "tail_2"] {
+        assert!(
+            nuisance[key].as_float().unwrap().is_finite(),
+            "{key}: {nuisance:?}"
+        );
+    }
     let _ = std::fs::remove_dir_all(&out);
 }

@@ -229,6 +229,16 @@ pub fn fit<'py>(
     } else {
         d.set_item("response", py.None())?;
     }
+    match &summary.nuisance {
+        Some(n) => {
+            let named = PyDict::new(py);
+            for (k, v) in n {
+                named.set_item(k, v)?;
+            }
+            d.set_item("nuisance", named)?;
+        }
+        None => d.set_item("nuisance", py.None())?,
+    }
     d.set_item("scale", summary.scale)?;
     d.set_item("background", summary.background)?;
     d.set_item("time_offset", summary.time_offset)?;

@@ -201,7 +201,9 @@ def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
     point ``[iy, ix]`` (the measurement's scan order, ``measured[iy, ix]``), the albedo
     and the depth from the wall (m) of the first face along the wall normal, NaN where
     there is none; ``chamfer`` (mm, with a truth) or None;
-    ``photon_noise_floor``; ``rejected_steps``; ``seconds``; ``files``; ``init`` (the
+    ``photon_noise_floor``; ``nuisance`` (with the capture model: its gain, floor and tail
+    coefficients by name, ``gain_1`` the scale, else None); ``rejected_steps``; ``seconds``;
+    ``files``; ``init`` (the
     start used, ``auto: NAME`` for ``auto``) and ``starts`` (``auto``:
     each start's final loss)."""
     toml_text = None

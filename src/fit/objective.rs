@@ -160,6 +160,9 @@ pub struct Rendered {
     pub time_offset_opl: f64,
     /// The loss at the held-out scan points (NaN: none).
     pub held_out: f64,
+    /// The capture model's fitted coefficients by name (`PointBackground::coefficients`;
+    /// empty without a capture model).
+    pub nuisance: Vec<(String, f64)>,
 }
 
 impl UmbraObjective {
@@ -199,6 +202,10 @@ impl UmbraObjective {
                 })
                 .collect(),
         };
+        let nuisance = match (&self.capture, &f.capture_fit) {
+            (Some(c), Some(fit)) => c.design.coefficients(&fit.beta),
+            _ => Vec::new(),
+        };
         Ok(Rendered {
             compared: f.render,
             model,
@@ -206,6 +213,7 @@ impl UmbraObjective {
             intensity: f.intensity,
             time_offset_opl: f.time_offset_opl,
             held_out: f.held_out,
+            nuisance,
         })
     }
 

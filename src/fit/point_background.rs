@@ -80,6 +80,22 @@ impl PointBackground {
             .sum()
     }
 
+    /// The coefficients `beta` by name: `gain_1, gain_x, gain_y, ...` (the gain field's
+    /// terms in the scan coordinates scaled to `[-1, 1]`, degree ≤ 2 with `xx, xy, yy`;
+    /// `gain_1` is the intensity scale), `floor_1, floor_x, ...` (counts per bin), and
+    /// `tail_1, tail_2, ...` (each tail's `κ_k`, in the order of [`Self::tails`]).
+    pub fn coefficients(&self, beta: &[f64; MAX_COLS]) -> Vec<(String, f64)> {
+        const NAMES: [&str; 6] = ["1", "x", "y", "xx", "xy", "yy"];
+        let (ng, nf) = (monomials(self.gain_degree), monomials(self.floor_degree));
+        let gain = NAMES[..ng].iter().map(|n| format!("gain_{n}"));
+        let floor = NAMES[..nf].iter().map(|n| format!("floor_{n}"));
+        let tails = (1..=self.tails.len()).map(|k| format!("tail_{k}"));
+        gain.chain(floor)
+            .chain(tails)
+            .zip(beta.iter().copied())
+            .collect()
+    }
+
     /// The background `μ − g h` at `(p, t)` for the coefficients `beta`.
     pub fn background(&self, beta: &[f64; MAX_COLS], p: usize, t: usize) -> f64 {
         super::linear_fit::model(self, beta, p, t, 0.0)
@@ -324,6 +340,27 @@ mod tests {
         let adj = adjoint(&d, &f, &h, &m, &win, Likelihood::L2);
         assert!(adj[2 * BINS..3 * BINS].iter().all(|&v| v == 0.0));
         assert!(adj[BINS..2 * BINS].iter().any(|&v| v != 0.0));
+    }
+
+    /// The coefficients are named in the design's column order.
+    #[test]
+    fn coefficients_are_named_in_column_order() {
+        let (pb, _) = setup(1);
+        let mut beta = [0.0; MAX_COLS];
+        for (i, b) in beta.iter_mut().enumerate() {
+            *b = i as f64;
+        }
+        let named = pb.coefficients(&beta);
+        let names: Vec<&str> = named.iter().map(|(n, _)| n.as_str()).collect();
+        let mut want = vec!["gain_1", "gain_x", "gain_y"];
+        want.extend([
+            "floor_1", "floor_x", "floor_y", "floor_xx", "floor_xy", "floor_yy",
+        ]);
+        let tails: Vec<String> = (1..=pb.tails.len()).map(|k| format!("tail_{k}")).collect();
+        want.extend(tails.iter().map(String::as_str));
+        assert_eq!(names, want);
+        assert!(named.iter().enumerate().all(|(i, (_, v))| *v == i as f64));
+        assert_eq!(pb.columns(), named.len());
     }
 
     #[test]

@@ -195,6 +195,9 @@ pub struct Summary {
     pub held_out_loss: Option<f64>,
     /// The detector response calibrated from the capture (`--background per-point`).
     pub response: Option<super::capture_options::ResponseSummary>,
+    /// The capture model's gain, floor and tail coefficients by name (`--background
+    /// per-point`; `PointBackground::coefficients`).
+    pub nuisance: Option<std::collections::BTreeMap<String, f64>>,
     pub scale: f64,
     pub background: f64,
     /// Fitted time offset (OPL, m; 0 unless searched).
@@ -533,6 +536,7 @@ pub fn run(
             .response
             .as_ref()
             .map(super::capture_options::ResponseSummary::of),
+        nuisance: (!report.nuisance.is_empty()).then(|| report.nuisance.iter().cloned().collect()),
         scale: report.intensity.scale,
         background: report.intensity.background,
         time_offset: report.time_offset_opl,

@@ -121,6 +121,9 @@ pub struct FitReport {
     pub time_offset_opl: f64,
     /// The detector response calibrated on the final mesh (with a capture model).
     pub response: Option<crate::film::response::Response>,
+    /// The capture model's gain, floor and tail coefficients on the final mesh, by name
+    /// (empty without one; `PointBackground::coefficients`).
+    pub nuisance: Vec<(String, f64)>,
     /// The loss at the held-out scan points of the final mesh (NaN: none held out).
     pub held_out_loss: f64,
     pub rejected_steps: u64,
@@ -555,6 +558,7 @@ pub fn fit(
         deviance,
         render: rendered.model,
         response: objective.capture.as_ref().map(|c| c.response.clone()),
+        nuisance: rendered.nuisance.clone(),
         held_out_loss: rendered.held_out,
         mesh: surface,
         full_mesh: outcome.mesh,

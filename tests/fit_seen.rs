@@ -38,17 +38,16 @@ fn pattern(x: f64, y: f64) -> f64 {
     }
 }
 
-/// A board over `[-0.3, 0.3]²` at depth [`Z`], vertices every 0.1 m carrying
-/// [`pattern`], facing the wall.
-fn board() -> Mesh {
-    let n = 7;
-    let at = |k: usize| -0.3 + 0.1 * k as f64;
+/// A square board of `n x n` vertices from `-half` to `half` on both axes at depth `z`,
+/// facing the wall, each vertex carrying `albedo(x, y)`.
+fn grid_board(n: usize, half: f64, z: f64, albedo: impl Fn(f64, f64) -> f64) -> Mesh {
+    let at = |k: usize| -half + 2.0 * half * k as f64 / (n - 1) as f64;
     let mut vertices = Vec::new();
     let mut values = Vec::new();
     for j in 0..n {
         for i in 0..n {
-            vertices.push([at(i), at(j), Z]);
-            values.push(pattern(at(i), at(j)));
+            vertices.push([at(i), at(j), z]);
+            values.push(albedo(at(i), at(j)));
         }
     }
     let mut faces = Vec::new();
@@ -63,6 +62,12 @@ fn board() -> Mesh {
     let mut m = Mesh::new(vertices, faces);
     m.vertex_values = values;
     m
+}
+
+/// A board over `[-0.3, 0.3]²` at depth [`Z`], vertices every 0.1 m carrying
+/// [`pattern`], facing the wall.
+fn board() -> Mesh {
+    grid_board(7, 0.3, Z, pattern)
 }
 
 /// What scan point `(x, y)` (wall frame) must see: `None` off the board; on it, the
@@ -358,23 +363,7 @@ fn bars(x: f64) -> f64 {
 /// The board of [`bars`] over `[-0.22, 0.22]²`, 0.5 m from the wall, facing it, as OBJ
 /// text with the albedo as each vertex's colour (vertices every 2 cm).
 fn bar_chart_obj() -> String {
-    let n = 23;
-    let at = |k: usize| -0.22 + 0.02 * k as f64;
-    let mut obj = String::new();
-    for j in 0..n {
-        for i in 0..n {
-            let a = bars(at(i));
-            obj += &format!("v {} {} 0.5 {a} {a} {a}\n", at(i), at(j));
-        }
-    }
-    for j in 0..n - 1 {
-        for i in 0..n - 1 {
-            let a = j * n + i + 1;
-            let (b, c, d) = (a + 1, a + 1 + n, a + n);
-            obj += &format!("f {a} {c} {b}\nf {a} {d} {c}\n");
-        }
-    }
-    obj
+    grid_board(23, 0.22, 0.5, |x, _| bars(x)).to_obj()
 }
 
 /// The mean of `values` (ny x nx, scan order) over the columns `x` of the 16 scan points

@@ -136,14 +136,9 @@ fn lct_initial_mesh_lies_on_the_patch() {
     assert!(e.to_string().contains("confocal"), "{e}");
 }
 
-/// `--init lct` on two objects at their own depths, the near one in front of the far one
-/// over some columns (`s_u`'s S and U): each is a sheet of its own at its depth, no face
-/// joins them (a few vertices of the LCT's own arcs aside).
-#[test]
-fn lct_start_holds_two_objects_at_their_depths_and_albedo() {
-    use umbra::fit::run::initial_mesh;
-    use umbra::fit::Init;
-    let (near, far) = (0.5f64, 0.85f64);
+/// `--init lct` of `objects` scanned confocally 16 x 16 over 0.8 m, rendered by tri3
+/// without occlusion (128 bins of [`BIN`] from OPL 0.8).
+fn lct_start(objects: Vec<(String, f32, &'static str)>) -> optim::Mesh {
     let s = SceneSpec {
         scan: [16, 16],
         scan_size: 0.8,
@@ -151,21 +146,30 @@ fn lct_start_holds_two_objects_at_their_depths_and_albedo() {
         bin_width: BIN,
         start_opl: 0.8,
         sigma_opl: None,
-        objects: vec![
-            (
-                square_obj([-0.08, 0.0, near as f32], 0.24),
-                1.0,
-                "lambertian",
-            ),
-            (square_obj([0.1, 0.0, far as f32], 0.3), 0.5, "lambertian"),
-        ],
+        objects,
         model: "tri3",
         render_extra: vec!["visibility = \"none\"".into()],
         ..SceneSpec::default()
     }
     .scene();
     let t = render(&s, Model::Tri3, 1, 0);
-    let mesh = initial_mesh(&s, &t.data, 0, &Init::Lct).unwrap();
+    umbra::fit::run::initial_mesh(&s, &t.data, 0, &umbra::fit::Init::Lct).unwrap()
+}
+
+/// `--init lct` on two objects at their own depths, the near one in front of the far one
+/// over some columns (`s_u`'s S and U): each is a sheet of its own at its depth, no face
+/// joins them (a few vertices of the LCT's own arcs aside).
+#[test]
+fn lct_start_holds_two_objects_at_their_depths_and_albedo() {
+    let (near, far) = (0.5f64, 0.85f64);
+    let mesh = lct_start(vec![
+        (
+            square_obj([-0.08, 0.0, near as f32], 0.24),
+            1.0,
+            "lambertian",
+        ),
+        (square_obj([0.1, 0.0, far as f32], 0.3), 0.5, "lambertian"),
+    ]);
     let z = |v: u32| mesh.vertices[v as usize][2];
     let on = |depth: f64| -> Vec<f64> {
         (0..mesh.vertices.len() as u32)
@@ -222,26 +226,10 @@ fn median(mut a: Vec<f64>) -> f64 {
 /// stages are left to restore). An albedo of ones (no contrast) fails.
 #[test]
 fn lct_start_holds_albedo_contrast_on_one_board() {
-    use umbra::fit::run::initial_mesh;
-    use umbra::fit::Init;
-    let s = SceneSpec {
-        scan: [16, 16],
-        scan_size: 0.8,
-        bins: 128,
-        bin_width: BIN,
-        start_opl: 0.8,
-        sigma_opl: None,
-        objects: vec![
-            (square_obj([-0.15, 0.0, 0.5], 0.3), 1.0, "lambertian"),
-            (square_obj([0.15, 0.0, 0.5], 0.3), 0.4, "lambertian"),
-        ],
-        model: "tri3",
-        render_extra: vec!["visibility = \"none\"".into()],
-        ..SceneSpec::default()
-    }
-    .scene();
-    let t = render(&s, Model::Tri3, 1, 0);
-    let mesh = initial_mesh(&s, &t.data, 0, &Init::Lct).unwrap();
+    let mesh = lct_start(vec![
+        (square_obj([-0.15, 0.0, 0.5], 0.3), 1.0, "lambertian"),
+        (square_obj([0.15, 0.0, 0.5], 0.3), 0.4, "lambertian"),
+    ]);
     let side = |sign: f64| -> Vec<f64> {
         (0..mesh.vertices.len())
             .filter(|&v| sign * mesh.vertices[v][0] >= 0.075)

@@ -175,6 +175,8 @@ pub fn default_schedule() -> Schedule {
 
 struct Factory<'a> {
     scene: &'a Scene,
+    /// The measurement with its leading bins still in: the capture model's `D_p` sums
+    /// the direct return there; each stage zeroes them for its objective.
     measured: &'a [f32],
     cfg: &'a FitConfig,
     /// `calibration.csv`'s rows: every response model tried, per stage built.
@@ -418,6 +420,7 @@ pub fn fit(
         )));
     }
     let identity = identity(scene, measured, cfg);
+    let unzeroed = measured;
     let mut measured = measured.to_vec();
     let first = first_fitted_bin(&base, cfg.ignore_before_opl);
     zero_leading_bins(&mut measured, base.film.temporal_bins as usize, first);
@@ -437,7 +440,7 @@ pub fn fit(
     let initial = initial_mesh(&base, measured, first, &cfg.init)?;
     let mut factory = Factory {
         scene: &base,
-        measured,
+        measured: unzeroed,
         cfg,
         calibrations: Default::default(),
     };

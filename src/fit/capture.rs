@@ -276,7 +276,7 @@ impl CaptureModel {
     /// blurred render, zero in the unfitted bins: the fitted transient (made on demand;
     /// the fit's evaluations do not need it).
     pub fn fitted(&self, blurred: &[f32], fit: &LinearFit) -> Vec<f32> {
-        let (design, beta) = (&self.design, &fit.beta);
+        let design = &self.design;
         blurred
             .chunks_exact(self.bins)
             .enumerate()
@@ -285,7 +285,7 @@ impl CaptureModel {
                     if t < self.first {
                         0.0
                     } else {
-                        linear_fit::model(design, beta, p, t, f64::from(h[t])) as f32
+                        linear_fit::mean(design, fit, p, t, f64::from(h[t])) as f32
                     }
                 })
             })
@@ -295,9 +295,9 @@ impl CaptureModel {
     /// The comparison's nuisances as an [`Intensity`]: the gain's constant term as the
     /// scale, the background's mean over the fitted bins of the points in the fit.
     pub fn intensity(&self, c: &CaptureComparison) -> Intensity {
-        let background =
-            self.design
-                .mean_background(&c.fit.beta, &self.in_fit, self.first..self.bins);
+        let background = self
+            .design
+            .mean_background(&c.fit, &self.in_fit, self.first..self.bins);
         Intensity {
             scale: c.fit.beta[0],
             background,
@@ -331,7 +331,7 @@ fn held_out_loss(
         }
         let mut sum = 0.0;
         for t in win.first..win.bins {
-            let mu = linear_fit::model(design, &fit.beta, p, t, f64::from(h[t]));
+            let mu = linear_fit::mean(design, fit, p, t, f64::from(h[t]));
             let m = f64::from(m[t]);
             n += 1;
             match likelihood {
@@ -420,7 +420,7 @@ impl Coords {
 #[cfg(test)]
 mod tests {
     use super::super::capture_options::{held_out_pattern, stanford_prior};
-    use super::super::point_background::exponential_tail;
+    use super::super::point_background::{exponential_tail, Floor};
     use super::*;
 
     const BINS: usize = 160;
@@ -463,7 +463,7 @@ mod tests {
             .collect();
         let tails = vec![exponential_tail(0.1, 0.0, WIDTH, BINS)];
         CaptureModel {
-            design: PointBackground::new(direct, tails, coords, 1, 1),
+            design: PointBackground::new(direct, tails, coords, Floor::Polynomial(1), 1),
             likelihood,
             response,
             in_fit: held_out_pattern(N, N, every),

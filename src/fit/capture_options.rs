@@ -4,7 +4,7 @@
 
 use super::capture::{CaptureModel, RESOLVED_BINS_PER_SIGMA};
 use super::linear_fit::Likelihood;
-use super::point_background::PointBackground;
+use super::point_background::{Floor, PointBackground};
 use crate::error::{Error, Result};
 use crate::film::response::{Response, OPL_PER_PS};
 use crate::scene::CaptureType;
@@ -40,8 +40,8 @@ pub struct CaptureOptions {
     pub likelihood: Likelihood,
     /// The response calibration starts from (and the stages too coarse to calibrate use).
     pub prior: Response,
-    /// The floor's and the gain's polynomial degrees over the scan (≤ 2).
-    pub floor_degree: usize,
+    /// The floor over the scan, and the gain's polynomial degree (≤ 2).
+    pub floor: Floor,
     pub gain_degree: usize,
     /// Time constants of the direct return's tail columns (OPL, m).
     pub tail_taus: Vec<f64>,
@@ -54,13 +54,13 @@ pub struct CaptureOptions {
 
 impl CaptureOptions {
     /// The Stanford LCT system's (`notes/capture-calibration.md`): the measured prior
-    /// response, a degree-2 floor and a degree-1 gain, tails of 333 ps and 1 ns, the
-    /// direct return in the first 400 ps, one point in 32 held out.
+    /// response, a floor per scan point and a degree-1 gain, tails of 333 ps and 1 ns,
+    /// the direct return in the first 400 ps, one point in 32 held out.
     pub fn stanford(likelihood: Likelihood) -> CaptureOptions {
         CaptureOptions {
             likelihood,
             prior: stanford_prior(),
-            floor_degree: 2,
+            floor: Floor::PerPoint,
             gain_degree: 1,
             tail_taus: vec![0.1, 0.3],
             direct_opl: 0.12,
@@ -112,13 +112,7 @@ impl CaptureOptions {
             })
             .collect();
         CaptureModel {
-            design: PointBackground::new(
-                direct,
-                tails,
-                coords,
-                self.floor_degree,
-                self.gain_degree,
-            ),
+            design: PointBackground::new(direct, tails, coords, self.floor, self.gain_degree),
             likelihood: self.likelihood,
             response: self.prior.clone(),
             in_fit,

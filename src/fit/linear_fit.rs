@@ -47,6 +47,11 @@ pub trait Design: Sync {
     fn nonnegative(&self) -> &[usize];
     /// The column of a constant floor (its row is 1 everywhere), if there is one.
     fn floor_column(&self) -> Option<usize>;
+    /// Whether the model adds a floor `f_p` per scan point to `x · β` (fitted with `β`
+    /// by [`super::point_floor`]; the design then has no floor column of its own).
+    fn point_floor(&self) -> bool {
+        false
+    }
 }
 
 /// The likelihood the nuisances and the loss use.
@@ -84,6 +89,16 @@ impl Window<'_> {
 pub struct LinearFit {
     pub beta: [f64; MAX_COLS],
     pub loss: f64,
+    /// Each scan point's floor `f_p` (every point, held-out ones too) where the design
+    /// has one ([`Design::point_floor`]); empty otherwise.
+    pub floors: Vec<f64>,
+}
+
+impl LinearFit {
+    /// The floor of point `p` (0 without per-point floors).
+    pub fn floor(&self, p: usize) -> f64 {
+        self.floors.get(p).copied().unwrap_or(0.0)
+    }
 }
 
 /// Sums of a design over the window: `G = Σ w x xᵀ`, `r = Σ w' x` and `c = Σ c'` for
@@ -158,6 +173,7 @@ pub fn fit_l2<D: Design>(d: &D, render: &[f32], measured: &[f32], win: &Window) 
     LinearFit {
         beta,
         loss: if mm > 0.0 { residual / mm } else { 0.0 },
+        floors: Vec::new(),
     }
 }
 
@@ -206,6 +222,7 @@ pub fn fit_poisson<D: Design>(
         return LinearFit {
             beta,
             loss: f64::INFINITY,
+            floors: Vec::new(),
         };
     };
     for _ in 0..50 {
@@ -259,6 +276,7 @@ pub fn fit_poisson<D: Design>(
     LinearFit {
         beta,
         loss: norm * cur.0,
+        floors: Vec::new(),
     }
 }
 
@@ -270,6 +288,9 @@ pub fn fit<D: Design>(
     win: &Window,
     likelihood: Likelihood,
 ) -> LinearFit {
+    if d.point_floor() {
+        return super::point_floor::fit(d, render, measured, win, likelihood);
+    }
     let l2 = fit_l2(d, render, measured, win);
     match likelihood {
         Likelihood::L2 => l2,
@@ -285,6 +306,11 @@ pub fn model<D: Design>(d: &D, beta: &[f64; MAX_COLS], p: usize, t: usize, h: f6
     let mut x = [0.0; MAX_COLS];
     d.row(p, t, h, &mut x);
     x[..d.columns()].iter().zip(beta).map(|(x, b)| x * b).sum()
+}
+
+/// `μ` of the fit at `(p, t)` with render `h`: [`model`] plus the point's floor.
+pub fn mean<D: Design>(d: &D, fit: &LinearFit, p: usize, t: usize, h: f64) -> f64 {
+    model(d, &fit.beta, p, t, h) + fit.floor(p)
 }
 
 /// The L2 solution moved until every fitted mean is positive: its non-negative columns
@@ -331,6 +357,7 @@ fn feasible<D: Design>(
     LinearFit {
         beta,
         loss: l2.loss,
+        floors: Vec::new(),
     }
 }
 
@@ -376,7 +403,7 @@ pub fn adjoint<D: Design>(
         .for_each(|(p, ((o, h), m))| {
             let dmu = d.d_render(&fit.beta, p);
             for t in win.first..win.bins {
-                let mu = model(d, &fit.beta, p, t, f64::from(h[t]));
+                let mu = mean(d, fit, p, t, f64::from(h[t]));
                 let m = f64::from(m[t]);
                 let r = match likelihood {
                     Likelihood::L2 => mu - m,
@@ -390,7 +417,7 @@ pub fn adjoint<D: Design>(
 
 /// The best `β` with the `nonneg` columns `≥ 0`: each face (a subset of them held at 0)
 /// solved unconstrained, the best feasible kept; and its residual `βᵀGβ − 2βᵀr + ‖M‖²`.
-fn constrained(
+pub(super) fn constrained(
     g: &[[f64; MAX_COLS]; MAX_COLS],
     r: &[f64; MAX_COLS],
     mm: f64,
@@ -430,7 +457,11 @@ fn constrained(
 /// after scaling `G` to unit diagonal (the columns' scales differ by orders of magnitude:
 /// a render in counts against a tail in counts per direct count); `None` if singular (an
 /// empty `free` gives an empty solution).
-fn solve(g: &[[f64; MAX_COLS]; MAX_COLS], r: &[f64; MAX_COLS], free: &[usize]) -> Option<Vec<f64>> {
+pub(super) fn solve(
+    g: &[[f64; MAX_COLS]; MAX_COLS],
+    r: &[f64; MAX_COLS],
+    free: &[usize],
+) -> Option<Vec<f64>> {
     let k = free.len();
     let d: Vec<f64> = free
         .iter()

@@ -32,6 +32,7 @@ pub mod metrics;
 pub mod objective;
 mod outputs;
 pub mod point_background;
+pub mod point_floor;
 mod prepare;
 pub mod reconstruction;
 pub mod request;

@@ -203,7 +203,7 @@ impl UmbraObjective {
                 .collect(),
         };
         let nuisance = match (&self.capture, &f.capture_fit) {
-            (Some(c), Some(fit)) => c.design.coefficients(&fit.beta),
+            (Some(c), Some(fit)) => c.design.coefficients(fit),
             _ => Vec::new(),
         };
         Ok(Rendered {

@@ -10,7 +10,9 @@
 //! - `g` the gain, a polynomial of degree ≤ 2 in the scan coordinates (the signal's
 //!   level changes over the scan as a smooth ramp, R² 0.83–0.98 in log; its degree-0
 //!   term is the intensity scale `s ≥ 0`);
-//! - `f` the floor, a polynomial of degree ≤ 2 (ambient light and dark counts);
+//! - `f` the floor (ambient light and dark counts): a polynomial of degree ≤ 2 over the
+//!   scan, or one value per scan point ([`Floor::PerPoint`], [`super::point_floor`]: the
+//!   Stanford captures' floor changes from one scan column to the next);
 //! - `D_p` the point's direct counts (the wall's own return, summed over its first bins),
 //!   `τ_k[t]` decaying exponentials of fixed time constants integrated over bin `t`,
 //!   `κ_k ≥ 0`: the direct return's tail, which runs under the signal with an amplitude
@@ -20,15 +22,32 @@
 //! plus a scaled tail reaches χ²/bin 1.00. `μ` is linear in `β = (g, f, κ)`: the
 //! nuisances are fitted in closed form by [`super::linear_fit`] (L2 or Poisson).
 
-use super::linear_fit::{Design, MAX_COLS};
+use super::linear_fit::{Design, LinearFit, MAX_COLS};
 
 /// The monomials `1, x, y, x², xy, y²` of degree ≤ `degree` (≤ 2).
 fn monomials(degree: usize) -> usize {
     [1, 3, 6][degree.min(2)]
 }
 
+/// The floor's columns in the design (none for a floor per point, fitted apart).
+fn floor_columns(floor: Floor) -> usize {
+    match floor {
+        Floor::Polynomial(degree) => monomials(degree),
+        Floor::PerPoint => 0,
+    }
+}
+
 fn terms(x: f64, y: f64) -> [f64; 6] {
     [1.0, x, y, x * x, x * y, y * y]
+}
+
+/// How the floor varies over the scan.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Floor {
+    /// A polynomial of this degree (≤ 2) in the scan coordinates.
+    Polynomial(usize),
+    /// One value per scan point, profiled out of the fit ([`super::point_floor`]).
+    PerPoint,
 }
 
 /// The model's fixed inputs, from the capture.
@@ -40,8 +59,7 @@ pub struct PointBackground {
     pub tails: Vec<Vec<f64>>,
     /// Scan coordinates of each point, scaled to `[-1, 1]`.
     pub coords: Vec<(f64, f64)>,
-    /// The floor's polynomial degree: 0, 1 or 2.
-    pub floor_degree: usize,
+    pub floor: Floor,
     /// The gain's polynomial degree: 0 (one scale), 1 or 2.
     pub gain_degree: usize,
     /// The scale and the tails' columns (held non-negative).
@@ -53,10 +71,10 @@ impl PointBackground {
         direct: Vec<f64>,
         tails: Vec<Vec<f64>>,
         coords: Vec<(f64, f64)>,
-        floor_degree: usize,
+        floor: Floor,
         gain_degree: usize,
     ) -> PointBackground {
-        let first_tail = monomials(gain_degree) + monomials(floor_degree);
+        let first_tail = monomials(gain_degree) + floor_columns(floor);
         let nonneg = std::iter::once(0)
             .chain(first_tail..first_tail + tails.len())
             .collect();
@@ -64,7 +82,7 @@ impl PointBackground {
             direct,
             tails,
             coords,
-            floor_degree,
+            floor,
             gain_degree,
             nonneg,
         }
@@ -83,22 +101,37 @@ impl PointBackground {
     /// The coefficients `beta` by name: `gain_1, gain_x, gain_y, ...` (the gain field's
     /// terms in the scan coordinates scaled to `[-1, 1]`, degree ≤ 2 with `xx, xy, yy`;
     /// `gain_1` is the intensity scale), `floor_1, floor_x, ...` (counts per bin), and
-    /// `tail_1, tail_2, ...` (each tail's `κ_k`, in the order of [`Self::tails`]).
-    pub fn coefficients(&self, beta: &[f64; MAX_COLS]) -> Vec<(String, f64)> {
+    /// `tail_1, tail_2, ...` (each tail's `κ_k`, in the order of [`Self::tails`]); with
+    /// a floor per point, `floor_mean`, `floor_min` and `floor_max` over the points.
+    pub fn coefficients(&self, fit: &LinearFit) -> Vec<(String, f64)> {
         const NAMES: [&str; 6] = ["1", "x", "y", "xx", "xy", "yy"];
-        let (ng, nf) = (monomials(self.gain_degree), monomials(self.floor_degree));
+        let (ng, nf) = (monomials(self.gain_degree), floor_columns(self.floor));
         let gain = NAMES[..ng].iter().map(|n| format!("gain_{n}"));
         let floor = NAMES[..nf].iter().map(|n| format!("floor_{n}"));
         let tails = (1..=self.tails.len()).map(|k| format!("tail_{k}"));
-        gain.chain(floor)
+        let mut named: Vec<(String, f64)> = gain
+            .chain(floor)
             .chain(tails)
-            .zip(beta.iter().copied())
-            .collect()
+            .zip(fit.beta.iter().copied())
+            .collect();
+        if self.floor == Floor::PerPoint && !fit.floors.is_empty() {
+            let n = fit.floors.len() as f64;
+            let (lo, hi) = fit
+                .floors
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &f| {
+                    (a.min(f), b.max(f))
+                });
+            named.push(("floor_mean".into(), fit.floors.iter().sum::<f64>() / n));
+            named.push(("floor_min".into(), lo));
+            named.push(("floor_max".into(), hi));
+        }
+        named
     }
 
-    /// The background `μ − g h` at `(p, t)` for the coefficients `beta`.
-    pub fn background(&self, beta: &[f64; MAX_COLS], p: usize, t: usize) -> f64 {
-        super::linear_fit::model(self, beta, p, t, 0.0)
+    /// The background `μ − g h` at `(p, t)` of `fit`.
+    pub fn background(&self, fit: &LinearFit, p: usize, t: usize) -> f64 {
+        super::linear_fit::mean(self, fit, p, t, 0.0)
     }
 
     /// The background's mean over the bins `bins` of the points `in_fit` marks (empty:
@@ -107,7 +140,7 @@ impl PointBackground {
     /// of products of a point's and a bin's factor, so its mean is `O(points + bins)`).
     pub fn mean_background(
         &self,
-        beta: &[f64; MAX_COLS],
+        fit: &LinearFit,
         in_fit: &[bool],
         bins: std::ops::Range<usize>,
     ) -> f64 {
@@ -118,10 +151,12 @@ impl PointBackground {
             return 0.0;
         }
         let n = points.len() as f64;
-        let (ng, nf) = (monomials(self.gain_degree), monomials(self.floor_degree));
+        let (ng, nf) = (monomials(self.gain_degree), floor_columns(self.floor));
         let mut mean_terms = [0.0; 6];
-        let mut mean_direct = 0.0;
+        let (mut mean_direct, mut point_floor) = (0.0, 0.0);
+        let beta = &fit.beta;
         for &p in &points {
+            point_floor += fit.floor(p) / n;
             let (x, y) = self.coords[p];
             mean_terms
                 .iter_mut()
@@ -139,19 +174,19 @@ impl PointBackground {
                 beta[ng + nf + k] * mean_direct * mean_tail
             })
             .sum();
-        floor + tails
+        floor + point_floor + tails
     }
 }
 
 impl Design for PointBackground {
     fn columns(&self) -> usize {
-        monomials(self.gain_degree) + monomials(self.floor_degree) + self.tails.len()
+        monomials(self.gain_degree) + floor_columns(self.floor) + self.tails.len()
     }
 
     fn row(&self, p: usize, t: usize, h: f64, out: &mut [f64; MAX_COLS]) {
         let (x, y) = self.coords[p];
         let m = terms(x, y);
-        let (ng, nf) = (monomials(self.gain_degree), monomials(self.floor_degree));
+        let (ng, nf) = (monomials(self.gain_degree), floor_columns(self.floor));
         for i in 0..ng {
             out[i] = h * m[i];
         }
@@ -170,7 +205,11 @@ impl Design for PointBackground {
     }
 
     fn floor_column(&self) -> Option<usize> {
-        Some(monomials(self.gain_degree))
+        (self.floor != Floor::PerPoint).then(|| monomials(self.gain_degree))
+    }
+
+    fn point_floor(&self) -> bool {
+        self.floor == Floor::PerPoint
     }
 }
 
@@ -215,7 +254,7 @@ mod tests {
             })
             .collect();
         (
-            PointBackground::new(direct, tails, coords, 2, gain_degree),
+            PointBackground::new(direct, tails, coords, Floor::Polynomial(2), gain_degree),
             render,
         )
     }
@@ -350,7 +389,11 @@ mod tests {
         for (i, b) in beta.iter_mut().enumerate() {
             *b = i as f64;
         }
-        let named = pb.coefficients(&beta);
+        let named = pb.coefficients(&LinearFit {
+            beta,
+            loss: 0.0,
+            floors: Vec::new(),
+        });
         let names: Vec<&str> = named.iter().map(|(n, _)| n.as_str()).collect();
         let mut want = vec!["gain_1", "gain_x", "gain_y"];
         want.extend([
@@ -392,15 +435,20 @@ mod tests {
         let (d, _) = setup(1);
         let mut beta = [0.0; MAX_COLS];
         beta[..TRUTH.len()].copy_from_slice(&TRUTH);
+        let fit = LinearFit {
+            beta,
+            loss: 0.0,
+            floors: Vec::new(),
+        };
         let in_fit: Vec<bool> = (0..36).map(|p| p % 4 != 1).collect();
         let (mut sum, mut n) = (0.0, 0.0);
         for p in (0..36).filter(|&p| in_fit[p]) {
             for t in FIRST..BINS {
-                sum += d.background(&beta, p, t);
+                sum += d.background(&fit, p, t);
                 n += 1.0;
             }
         }
-        let mean = d.mean_background(&beta, &in_fit, FIRST..BINS);
+        let mean = d.mean_background(&fit, &in_fit, FIRST..BINS);
         assert!(
             (mean - sum / n).abs() < 1e-12 * (sum / n).abs(),
             "{mean} against {}",

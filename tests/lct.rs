@@ -116,7 +116,7 @@ fn lct_scene_fit_starts_with_light() {
         .as_table()
         .expect("summary.toml [nuisance]");
     assert!(nuisance["gain_1"].as_float().unwrap() > 0.0, "{nuisance:?}");
-    for key in ["gain_x", "floor_1", "floor_yy", "tail_1", "tail_2"] {
+    for key in ["gain_x", "floor_mean", "floor_min", "tail_1", "tail_2"] {
         assert!(
             nuisance[key].as_float().unwrap().is_finite(),
             "{key}: {nuisance:?}"
@@ -126,6 +126,8 @@ fn lct_scene_fit_starts_with_light() {
     // §3): the model holds it. Until 2026-12-08 the capture model summed each point's
     // direct counts on the measurement with its leading bins already zeroed, every tail
     // column was zero and both gains stayed 0.
+    // A floor per scan point (fit::point_floor): dark counts, never negative.
+    assert!(nuisance["floor_min"].as_float().unwrap() >= 0.0, "{nuisance:?}");
     let tails = nuisance["tail_1"].as_float().unwrap() + nuisance["tail_2"].as_float().unwrap();
     assert!(tails > 0.0, "no direct tail fitted: {nuisance:?}");
     let _ = std::fs::remove_dir_all(&out);

@@ -211,32 +211,58 @@ pub fn fit_poisson<D: Design>(
     counts_per_value: f64,
     start: &LinearFit,
 ) -> LinearFit {
-    let n = d.columns();
-    let nonneg = d.nonnegative();
     let size = win.size(render.len() / win.bins.max(1)).max(1) as f64;
     let norm = 2.0 * counts_per_value / size;
-    let mut beta = start.beta;
-    let Some(mut cur) = poisson_terms(d, render, measured, win, &beta) else {
+    let Some(first) = poisson_terms(d, render, measured, win, &start.beta) else {
         // The L2 solution puts a bin's mean at or below zero: the deviance is not
         // defined there, and the L2 fit is returned with an infinite loss.
         return LinearFit {
-            beta,
+            beta: start.beta,
             loss: f64::INFINITY,
             floors: Vec::new(),
         };
     };
+    // A column that is zero on the window (a tail of no direct counts) has no curvature
+    // and stays where it is ([`projected_newton`]).
+    let (beta, cur) = projected_newton(
+        d,
+        (start.beta, first),
+        |s| s.0,
+        |_, s| (s.1, s.2),
+        |next, _| poisson_terms(d, render, measured, win, next),
+    );
+    LinearFit {
+        beta,
+        loss: norm * cur.0,
+        floors: Vec::new(),
+    }
+}
+
+/// Projected Newton steps on a convex loss of `β` with the design's non-negative columns
+/// held `≥ 0`, from `start` (`β` and its evaluation state `S`): `value` reads the loss from
+/// a state, `terms` gives the gradient and Hessian at `β`, `evaluate` the state at a trial
+/// `β` (`None` where the loss is undefined). Free variables are those off their bound or
+/// pushed inward, with curvature; a nearly dependent set is damped; a backtracking line
+/// search keeps every step downhill. Shared by the Poisson fits with and without a floor
+/// per point ([`super::point_floor`]).
+pub(super) fn projected_newton<D: Design, S>(
+    d: &D,
+    start: ([f64; MAX_COLS], S),
+    value: impl Fn(&S) -> f64,
+    terms: impl Fn(&[f64; MAX_COLS], &S) -> ([f64; MAX_COLS], [[f64; MAX_COLS]; MAX_COLS]),
+    evaluate: impl Fn(&[f64; MAX_COLS], &S) -> Option<S>,
+) -> ([f64; MAX_COLS], S) {
+    let (n, nonneg) = (d.columns(), d.nonnegative());
+    let (mut beta, mut cur) = start;
     for _ in 0..50 {
-        let (_, grad, hess) = &cur;
-        // Free variables: off their bound, or with a gradient pushing inward.
+        let (grad, hess) = terms(&beta, &cur);
         let free: Vec<usize> = (0..n)
             .filter(|&i| !(nonneg.contains(&i) && beta[i] <= 0.0 && grad[i] > 0.0))
+            .filter(|&i| hess[i][i] > 0.0)
             .collect();
         let neg: [f64; MAX_COLS] = std::array::from_fn(|i| -grad[i]);
-        // A column that is zero on the window (a tail of no direct counts) has no
-        // curvature and stays where it is; a nearly dependent set is damped.
-        let free: Vec<usize> = free.into_iter().filter(|&i| hess[i][i] > 0.0).collect();
         let damped = |k: f64| {
-            let mut h = *hess;
+            let mut h = hess;
             (0..n).for_each(|i| h[i][i] *= 1.0 + k);
             h
         };
@@ -248,8 +274,7 @@ pub fn fit_poisson<D: Design>(
         };
         let mut dir = [0.0; MAX_COLS];
         free.iter().zip(&step).for_each(|(&i, &s)| dir[i] = s);
-        let mut t = 1.0;
-        let mut moved = false;
+        let (mut t, mut moved) = (1.0, false);
         while t > 1e-10 {
             let mut next = beta;
             for i in 0..n {
@@ -258,12 +283,11 @@ pub fn fit_poisson<D: Design>(
                     next[i] = next[i].max(0.0);
                 }
             }
-            if let Some(terms) = poisson_terms(d, render, measured, win, &next) {
-                if terms.0 <= cur.0 {
-                    let change = (cur.0 - terms.0) / cur.0.abs().max(1e-300);
-                    beta = next;
-                    cur = terms;
-                    moved = change > 1e-13;
+            if let Some(state) = evaluate(&next, &cur) {
+                let (was, now) = (value(&cur), value(&state));
+                if now <= was {
+                    moved = (was - now) / was.abs().max(1e-300) > 1e-13;
+                    (beta, cur) = (next, state);
                     break;
                 }
             }
@@ -273,11 +297,22 @@ pub fn fit_poisson<D: Design>(
             break;
         }
     }
-    LinearFit {
-        beta,
-        loss: norm * cur.0,
-        floors: Vec::new(),
-    }
+    (beta, cur)
+}
+
+/// `f(p, render row, measured row)` for every scan point, in parallel, in point order.
+pub(super) fn per_point<T: Send>(
+    render: &[f32],
+    measured: &[f32],
+    bins: usize,
+    f: impl Fn(usize, &[f32], &[f32]) -> T + Sync,
+) -> Vec<T> {
+    render
+        .par_chunks_exact(bins)
+        .zip(measured.par_chunks_exact(bins))
+        .enumerate()
+        .map(|(p, (h, m))| f(p, h, m))
+        .collect()
 }
 
 /// The fit of `likelihood`.

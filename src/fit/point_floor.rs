@@ -28,9 +28,9 @@
 //! independent).
 
 use super::linear_fit::{
-    constrained, deviance_term, solve, Design, Likelihood, LinearFit, Window, MAX_COLS,
+    constrained, deviance_term, per_point, projected_newton, Design, Likelihood, LinearFit, Window,
+    MAX_COLS,
 };
-use rayon::prelude::*;
 
 type Matrix = [[f64; MAX_COLS]; MAX_COLS];
 
@@ -109,15 +109,12 @@ fn symmetric(mut g: Matrix, n: usize) -> Matrix {
 #[allow(clippy::needless_range_loop)] // index pairs of a symmetric matrix
 fn fit_l2<D: Design>(d: &D, render: &[f32], measured: &[f32], win: &Window) -> LinearFit {
     let cols = d.columns();
-    let per_point: Vec<Moments> = render
-        .par_chunks_exact(win.bins)
-        .zip(measured.par_chunks_exact(win.bins))
-        .enumerate()
-        .map(|(p, (h, m))| moments(d, p, h, m, win))
-        .collect();
+    let sums: Vec<Moments> = per_point(render, measured, win.bins, |p, h, m| {
+        moments(d, p, h, m, win)
+    });
     let (mut g, mut r) = ([[0.0; MAX_COLS]; MAX_COLS], [0.0; MAX_COLS]);
     let (mut centred, mut total) = (0.0, 0.0);
-    for (p, mo) in per_point.iter().enumerate() {
+    for (p, mo) in sums.iter().enumerate() {
         if !uses(win, p) || mo.n == 0.0 {
             continue;
         }
@@ -131,7 +128,7 @@ fn fit_l2<D: Design>(d: &D, render: &[f32], measured: &[f32], win: &Window) -> L
         total += mo.smm;
     }
     let (beta, residual) = constrained(&symmetric(g, cols), &r, centred, cols, d.nonnegative());
-    let floors = per_point
+    let floors = sums
         .iter()
         .map(|mo| {
             let xb: f64 = (0..cols).map(|i| mo.sx[i] * beta[i]).sum();
@@ -223,15 +220,10 @@ fn profile_all<D: Design>(
     beta: &[f64; MAX_COLS],
     start: &[f64],
 ) -> Vec<f64> {
-    render
-        .par_chunks_exact(win.bins)
-        .zip(measured.par_chunks_exact(win.bins))
-        .enumerate()
-        .map(|(p, (h, m))| {
-            let (a, m) = point_rows(d, beta, p, h, m, win);
-            profile(&a, &m, start.get(p).copied().unwrap_or(0.0))
-        })
-        .collect()
+    per_point(render, measured, win.bins, |p, h, m| {
+        let (a, m) = point_rows(d, beta, p, h, m, win);
+        profile(&a, &m, start.get(p).copied().unwrap_or(0.0))
+    })
 }
 
 /// The deviance (unnormalised) over the window's points for `beta` and `floors`.
@@ -243,22 +235,17 @@ fn deviance<D: Design>(
     beta: &[f64; MAX_COLS],
     floors: &[f64],
 ) -> f64 {
-    let per_point: Vec<f64> = render
-        .par_chunks_exact(win.bins)
-        .zip(measured.par_chunks_exact(win.bins))
-        .enumerate()
-        .map(|(p, (h, m))| {
-            if !uses(win, p) {
-                return 0.0;
-            }
-            let (a, m) = point_rows(d, beta, p, h, m, win);
-            a.iter()
-                .zip(&m)
-                .map(|(&a, &m)| deviance_term(m, a + floors[p]))
-                .sum()
-        })
-        .collect();
-    per_point.iter().sum()
+    let terms: Vec<f64> = per_point(render, measured, win.bins, |p, h, m| {
+        if !uses(win, p) {
+            return 0.0;
+        }
+        let (a, m) = point_rows(d, beta, p, h, m, win);
+        a.iter()
+            .zip(&m)
+            .map(|(&a, &m)| deviance_term(m, a + floors[p]))
+            .sum()
+    });
+    terms.iter().sum()
 }
 
 /// The profiled deviance's gradient and Hessian in `β` at `(beta, floors)`.
@@ -271,49 +258,44 @@ fn newton_terms<D: Design>(
     floors: &[f64],
 ) -> ([f64; MAX_COLS], Matrix) {
     let cols = d.columns();
-    let per_point: Vec<([f64; MAX_COLS], Matrix)> = render
-        .par_chunks_exact(win.bins)
-        .zip(measured.par_chunks_exact(win.bins))
-        .enumerate()
-        .map(|(p, (h, m))| {
-            let (mut grad, mut hess) = ([0.0; MAX_COLS], [[0.0; MAX_COLS]; MAX_COLS]);
-            if !uses(win, p) {
-                return (grad, hess);
-            }
-            let (mut hf, mut hff, mut gf) = ([0.0; MAX_COLS], 0.0, 0.0);
-            let mut x = [0.0; MAX_COLS];
-            let mut a = Vec::with_capacity(win.bins);
-            for t in win.first..win.bins {
-                let m = f64::from(m[t]);
-                d.row(p, t, f64::from(h[t]), &mut x);
-                let mu = x[..cols].iter().zip(beta).map(|(x, b)| x * b).sum::<f64>() + floors[p];
-                a.push(mu - floors[p]);
-                let (w, r) = (m / (mu * mu), 1.0 - m / mu);
-                gf += r;
-                hff += w;
-                for i in 0..cols {
-                    grad[i] += r * x[i];
-                    hf[i] += w * x[i];
-                    for j in 0..=i {
-                        hess[i][j] += w * x[i] * x[j];
-                    }
+    let terms: Vec<([f64; MAX_COLS], Matrix)> = per_point(render, measured, win.bins, |p, h, m| {
+        let (mut grad, mut hess) = ([0.0; MAX_COLS], [[0.0; MAX_COLS]; MAX_COLS]);
+        if !uses(win, p) {
+            return (grad, hess);
+        }
+        let (mut hf, mut hff, mut gf) = ([0.0; MAX_COLS], 0.0, 0.0);
+        let mut x = [0.0; MAX_COLS];
+        let mut a = Vec::with_capacity(win.bins);
+        for t in win.first..win.bins {
+            let m = f64::from(m[t]);
+            d.row(p, t, f64::from(h[t]), &mut x);
+            let mu = x[..cols].iter().zip(beta).map(|(x, b)| x * b).sum::<f64>() + floors[p];
+            a.push(mu - floors[p]);
+            let (w, r) = (m / (mu * mu), 1.0 - m / mu);
+            gf += r;
+            hff += w;
+            for i in 0..cols {
+                grad[i] += r * x[i];
+                hf[i] += w * x[i];
+                for j in 0..=i {
+                    hess[i][j] += w * x[i] * x[j];
                 }
             }
-            let ms: Vec<f64> = (win.first..win.bins).map(|t| f64::from(m[t])).collect();
-            let at_bound = floors[p] <= floor_bound(&a, &ms) && gf > 0.0;
-            if hff > 0.0 && !at_bound {
-                for i in 0..cols {
-                    grad[i] -= hf[i] * gf / hff;
-                    for j in 0..=i {
-                        hess[i][j] -= hf[i] * hf[j] / hff;
-                    }
+        }
+        let ms: Vec<f64> = (win.first..win.bins).map(|t| f64::from(m[t])).collect();
+        let at_bound = floors[p] <= floor_bound(&a, &ms) && gf > 0.0;
+        if hff > 0.0 && !at_bound {
+            for i in 0..cols {
+                grad[i] -= hf[i] * gf / hff;
+                for j in 0..=i {
+                    hess[i][j] -= hf[i] * hf[j] / hff;
                 }
             }
-            (grad, hess)
-        })
-        .collect();
+        }
+        (grad, hess)
+    });
     let (mut grad, mut hess) = ([0.0; MAX_COLS], [[0.0; MAX_COLS]; MAX_COLS]);
-    for (g, h) in per_point {
+    for (g, h) in terms {
         for i in 0..cols {
             grad[i] += g[i];
             for j in 0..=i {
@@ -332,55 +314,21 @@ fn fit_poisson<D: Design>(
     counts_per_value: f64,
     start: [f64; MAX_COLS],
 ) -> LinearFit {
-    let cols = d.columns();
-    let nonneg = d.nonnegative();
     let size = win.size(render.len() / win.bins.max(1)).max(1) as f64;
-    let mut beta = start;
-    let mut floors = profile_all(d, render, measured, win, &beta, &[]);
-    let mut cur = deviance(d, render, measured, win, &beta, &floors);
-    for _ in 0..50 {
-        let (grad, hess) = newton_terms(d, render, measured, win, &beta, &floors);
-        let free: Vec<usize> = (0..cols)
-            .filter(|&i| !(nonneg.contains(&i) && beta[i] <= 0.0 && grad[i] > 0.0))
-            .filter(|&i| hess[i][i] > 0.0)
-            .collect();
-        let neg: [f64; MAX_COLS] = std::array::from_fn(|i| -grad[i]);
-        let damped = |k: f64| {
-            let mut h = hess;
-            (0..cols).for_each(|i| h[i][i] *= 1.0 + k);
-            h
-        };
-        let Some(step) = [0.0, 1e-9, 1e-6, 1e-3]
-            .iter()
-            .find_map(|&k| solve(&damped(k), &neg, &free))
-        else {
-            break;
-        };
-        let mut dir = [0.0; MAX_COLS];
-        free.iter().zip(&step).for_each(|(&i, &s)| dir[i] = s);
-        let (mut t, mut moved) = (1.0, false);
-        while t > 1e-10 {
-            let mut next = beta;
-            for i in 0..cols {
-                next[i] += t * dir[i];
-                if nonneg.contains(&i) {
-                    next[i] = next[i].max(0.0);
-                }
-            }
-            let next_floors = profile_all(d, render, measured, win, &next, &floors);
-            let dev = deviance(d, render, measured, win, &next, &next_floors);
-            if dev <= cur {
-                let change = (cur - dev) / cur.abs().max(1e-300);
-                (beta, floors, cur) = (next, next_floors, dev);
-                moved = change > 1e-13;
-                break;
-            }
-            t *= 0.5;
-        }
-        if !moved {
-            break;
-        }
-    }
+    let floors = profile_all(d, render, measured, win, &start, &[]);
+    let dev = deviance(d, render, measured, win, &start, &floors);
+    // The state: the floors profiled at β, and the deviance there.
+    let (beta, (floors, cur)) = projected_newton(
+        d,
+        (start, (floors, dev)),
+        |s| s.1,
+        |beta, s| newton_terms(d, render, measured, win, beta, &s.0),
+        |next, s| {
+            let floors = profile_all(d, render, measured, win, next, &s.0);
+            let dev = deviance(d, render, measured, win, next, &floors);
+            Some((floors, dev))
+        },
+    );
     LinearFit {
         beta,
         loss: 2.0 * counts_per_value / size * cur,

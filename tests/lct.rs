@@ -122,12 +122,15 @@ fn lct_scene_fit_starts_with_light() {
             "{key}: {nuisance:?}"
         );
     }
+    // A floor per scan point (fit::point_floor): dark counts, never negative.
+    assert!(
+        nuisance["floor_min"].as_float().unwrap() >= 0.0,
+        "{nuisance:?}"
+    );
     // The direct return's tail runs under the fitted bins (notes/capture-calibration.md
     // §3): the model holds it. Until 2026-12-08 the capture model summed each point's
     // direct counts on the measurement with its leading bins already zeroed, every tail
     // column was zero and both gains stayed 0.
-    // A floor per scan point (fit::point_floor): dark counts, never negative.
-    assert!(nuisance["floor_min"].as_float().unwrap() >= 0.0, "{nuisance:?}");
     let tails = nuisance["tail_1"].as_float().unwrap() + nuisance["tail_2"].as_float().unwrap();
     assert!(tails > 0.0, "no direct tail fitted: {nuisance:?}");
     let _ = std::fs::remove_dir_all(&out);

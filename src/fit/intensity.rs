@@ -26,7 +26,7 @@ pub enum Background {
     /// scan point, e.g. the tail of the direct light and the wall's own response in a
     /// confocal capture rectified to the wall, or a time-varying ambient floor.
     PerBin,
-    /// A real capture's background per scan point: a floor smooth over the scan and the
+    /// A real capture's background per scan point: a floor per scan point and the
     /// direct return's tail scaled by each point's direct counts, with a gain field and a
     /// calibrated detector response ([`super::capture`], which replaces this module's
     /// closed form: a fit with it never comes here).

@@ -1,5 +1,5 @@
 //! A capture's model of everything but the hidden surface (issue 48): a gain field over
-//! the scan, a floor smooth over the scan, and the direct return's tail scaled by each
+//! the scan, a floor (per scan point, or smooth over the scan), and the direct return's tail scaled by each
 //! point's own direct counts.
 //!
 //! `notes/capture-calibration.md` measures it on the Stanford captures: at scan point `p`

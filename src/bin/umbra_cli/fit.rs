@@ -58,7 +58,7 @@ pub struct FitArgs {
     /// which has none), `constant` (dark counts, ambient light; default with
     /// `--measured`), `per-bin` (one value per time bin shared by all scan points) or
     /// `per-point` (default for LCT `.mat` captures: the capture model calibrated from
-    /// the data, a floor smooth over the scan plus the direct return's tail scaled by
+    /// the data, a floor per scan point plus the direct return's tail scaled by
     /// each point's direct counts, a gain field, and the detector response calibrated as
     /// a core with tails; docs/FITTING.md). `true` and `false` mean `constant` and `none`.
     #[arg(long)]

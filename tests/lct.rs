@@ -133,5 +133,11 @@ fn lct_scene_fit_starts_with_light() {
     // column was zero and both gains stayed 0.
     let tails = nuisance["tail_1"].as_float().unwrap() + nuisance["tail_2"].as_float().unwrap();
     assert!(tails > 0.0, "no direct tail fitted: {nuisance:?}");
+    // floor.npy holds the floors the summary describes, on the 8,2-binned 32 x 32 scan.
+    let floor: ndarray::Array2<f32> = ndarray_npy::read_npy(out.join("floor.npy")).unwrap();
+    assert_eq!(floor.dim(), (32, 32));
+    let mean = floor.iter().map(|&v| f64::from(v)).sum::<f64>() / floor.len() as f64;
+    let want = nuisance["floor_mean"].as_float().unwrap();
+    assert!((mean / want - 1.0).abs() < 1e-5, "{mean} against {want}");
     let _ = std::fs::remove_dir_all(&out);
 }

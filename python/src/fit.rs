@@ -284,6 +284,19 @@ pub fn fit<'py>(
                 .reshape([seen.ny, seen.nx])?,
         )?;
     }
+    // The capture model's floor per scan point (floor.npy), or None.
+    if report.floors.len() == seen.ny * seen.nx {
+        d.set_item(
+            "floor",
+            report
+                .floors
+                .clone()
+                .into_pyarray(py)
+                .reshape([seen.ny, seen.nx])?,
+        )?;
+    } else {
+        d.set_item("floor", py.None())?;
+    }
     d.set_item(
         "render",
         report.render.into_pyarray(py).reshape(shape.clone())?,

@@ -39,3 +39,5 @@ def test_fit_returns_the_albedo_and_depth_seen_from_the_wall(tmp_path: Path):
         np.testing.assert_array_equal(f, a)
     names = {Path(f).name for f in out["files"]}
     assert {"albedo.npy", "depth.npy", "albedo.png", "reconstruction.png"} <= names
+    # No capture model (background "none"): no floor per scan point.
+    assert out["floor"] is None and "floor.npy" not in names

@@ -202,7 +202,9 @@ def fit(scene: Scene, measured: Union[None, PathLike, npt.ArrayLike] = None, *,
     and the depth from the wall (m) of the first face along the wall normal, NaN where
     there is none; ``chamfer`` (mm, with a truth) or None;
     ``photon_noise_floor``; ``nuisance`` (with the capture model: its gain, floor and tail
-    coefficients by name, ``gain_1`` the scale, else None); ``rejected_steps``; ``seconds``;
+    coefficients by name, ``gain_1`` the scale, else None); ``floor`` (ny, nx) float64, the
+    capture model's floor per scan point in counts per bin of the measurement as fitted
+    (floor.npy), or None; ``rejected_steps``; ``seconds``;
     ``files``; ``init`` (the
     start used, ``auto: NAME`` for ``auto``) and ``starts`` (``auto``:
     each start's final loss)."""

@@ -163,6 +163,9 @@ pub struct Rendered {
     /// The capture model's fitted coefficients by name (`PointBackground::coefficients`;
     /// empty without a capture model).
     pub nuisance: Vec<(String, f64)>,
+    /// The capture model's floor per scan point (counts per bin, every point in the
+    /// measurement's order; empty without one).
+    pub floors: Vec<f64>,
 }
 
 impl UmbraObjective {
@@ -214,6 +217,7 @@ impl UmbraObjective {
             time_offset_opl: f.time_offset_opl,
             held_out: f.held_out,
             nuisance,
+            floors: f.capture_fit.map(|fit| fit.floors).unwrap_or_default(),
         })
     }
 

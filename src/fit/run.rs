@@ -124,6 +124,10 @@ pub struct FitReport {
     /// The capture model's gain, floor and tail coefficients on the final mesh, by name
     /// (empty without one; `PointBackground::coefficients`).
     pub nuisance: Vec<(String, f64)>,
+    /// The capture model's floor per scan point on the final mesh (counts per bin of the
+    /// fitted measurement, in the measurement's scan order; `floor.npy`; empty without
+    /// one).
+    pub floors: Vec<f64>,
     /// The loss at the held-out scan points of the final mesh (NaN: none held out).
     pub held_out_loss: f64,
     pub rejected_steps: u64,
@@ -528,6 +532,14 @@ pub fn fit(
     let seen = seen_surface(&base, &outcome.mesh, cfg.albedo);
     files.extend(write_seen(out, &base, &seen)?);
     files.extend(write_loss(out, &outcome.history)?);
+    let (nx, ny) = (base.scan.nx as usize, base.scan.ny as usize);
+    if rendered.floors.len() == nx * ny {
+        let path = out.join("floor.npy");
+        let values: Vec<f32> = rendered.floors.iter().map(|&f| f as f32).collect();
+        let bytes = super::seen::npy(&values, ny, nx, &path)?;
+        write_atomic(&path, &bytes).map_err(|e| Error::io(&path, e))?;
+        files.push(path);
+    }
     if cfg.capture.is_some() {
         let path = out.join("calibration.csv");
         let mut csv = format!(
@@ -562,6 +574,7 @@ pub fn fit(
         render: rendered.model,
         response: objective.capture.as_ref().map(|c| c.response.clone()),
         nuisance: rendered.nuisance.clone(),
+        floors: rendered.floors.clone(),
         held_out_loss: rendered.held_out,
         mesh: surface,
         full_mesh: outcome.mesh,

@@ -188,7 +188,7 @@ impl WallView {
 }
 
 /// A `(ny, nx)` float32 array as `.npy` bytes (C order).
-fn npy(values: &[f32], ny: usize, nx: usize, path: &Path) -> Result<Vec<u8>> {
+pub(crate) fn npy(values: &[f32], ny: usize, nx: usize, path: &Path) -> Result<Vec<u8>> {
     let arr = ndarray::ArrayView2::from_shape((ny, nx), values)
         .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
     let mut bytes = Vec::new();

@@ -23,7 +23,8 @@ pub struct FitArgs {
     pub measured: Option<PathBuf>,
     /// Output directory: mesh.obj, mesh_all.obj, loss.csv, loss.png, transients.png,
     /// albedo.npy and depth.npy (the fitted surface seen from the wall, (ny, nx) per scan
-    /// point), albedo.png, reconstruction.png (next to the LCT), summary.toml, checkpoint/.
+    /// point), albedo.png, reconstruction.png (next to the LCT), floor.npy (a capture
+    /// model's floor per scan point, (ny, nx)), summary.toml, checkpoint/.
     #[arg(short, long, default_value = "out/fit")]
     pub output: PathBuf,
     /// Initial mesh: plane, sphere, scene (the scene's hidden objects), or

@@ -57,6 +57,9 @@ pub struct Candidate {
     /// The loss at the points in the fit, and at the held-out ones (NaN: none).
     pub loss: f64,
     pub held_out: f64,
+    /// The paired z of its held-out per-point losses against the model kept before it
+    /// (mean improvement over its standard error; NaN for the first, or none held out).
+    pub held_out_z: f64,
     /// Whether the calibration kept it.
     pub kept: bool,
 }
@@ -64,18 +67,19 @@ pub struct Candidate {
 impl Candidate {
     /// The header of [`Candidate::csv_row`]'s rows.
     pub const CSV_HEADER: &'static str =
-        "tails,loss,held_out_loss,sigma_ps,t0_ps,w1,tau1_ps,w2,tau2_ps,kept";
+        "tails,loss,held_out_loss,held_out_z,sigma_ps,t0_ps,w1,tau1_ps,w2,tau2_ps,kept";
 
-    /// A CSV row: tails, loss, held-out loss, σ and t0 (ps), then weight and τ (ps) per
-    /// tail up to [`MAX_CALIBRATED_TAILS`], kept (0/1).
+    /// A CSV row: tails, loss, held-out loss and z, σ and t0 (ps), then weight and τ (ps)
+    /// per tail up to [`MAX_CALIBRATED_TAILS`], kept (0/1).
     pub fn csv_row(&self) -> String {
         let ps = |opl: f64| opl / OPL_PER_PS;
         let r = &self.response;
         let mut row = format!(
-            "{},{:e},{:e},{:.3},{:.3}",
+            "{},{:e},{:e},{:.3},{:.3},{:.3}",
             r.tails.len(),
             self.loss,
             self.held_out,
+            self.held_out_z,
             ps(r.sigma),
             ps(r.t0)
         );
@@ -195,17 +199,21 @@ impl CaptureModel {
                 ..prior.clone()
             };
             let (response, c) = self.descend(raw, measured, start);
+            let z = best.as_ref().map_or(f64::NAN, |(b, _)| {
+                paired_z(&b.held_out_points, &c.held_out_points)
+            });
             tried.push(Candidate {
                 response: response.clone(),
                 loss: c.loss,
                 held_out: c.held_out,
+                held_out_z: z,
                 kept: false,
             });
             let better = best.as_ref().is_none_or(|(b, _)| {
                 if c.held_out_points.is_empty() {
                     c.loss < b.loss
                 } else {
-                    clearly_better(&b.held_out_points, &c.held_out_points)
+                    z > HELD_OUT_MARGIN
                 }
             });
             if better {
@@ -356,18 +364,33 @@ fn held_out_loss(
     (loss, points)
 }
 
-/// Whether the per-point held-out losses `b` beat `a` (the simpler model's) by more than
-/// twice the standard error of their paired differences: a richer model must earn its
-/// parameters on data it was not fitted to, by more than its noise.
-fn clearly_better(a: &[f64], b: &[f64]) -> bool {
+/// How many standard errors of the paired per-point differences a richer response must
+/// improve the held-out loss by to be kept: it must earn its parameters on data it was
+/// not fitted to, by more than its noise.
+pub const HELD_OUT_MARGIN: f64 = 2.0;
+
+/// The paired z of the per-point held-out losses `b` against `a` (the simpler model's):
+/// the mean of `a − b` over its standard error (±∞ for a nonzero mean without spread, or
+/// from a single point; NaN for none).
+fn paired_z(a: &[f64], b: &[f64]) -> f64 {
     let n = a.len().min(b.len());
-    if n < 2 {
-        return b.iter().sum::<f64>() < a.iter().sum::<f64>();
+    if n == 0 {
+        return f64::NAN;
     }
     let d: Vec<f64> = a.iter().zip(b).map(|(a, b)| a - b).collect();
     let mean = d.iter().sum::<f64>() / n as f64;
-    let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
-    mean > 2.0 * (var / n as f64).sqrt()
+    let var = match n {
+        1 => 0.0,
+        _ => d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64,
+    };
+    let se = (var / n as f64).sqrt();
+    if se > 0.0 {
+        mean / se
+    } else if mean != 0.0 {
+        mean.signum() * f64::INFINITY
+    } else {
+        0.0
+    }
 }
 
 /// The calibration's coordinates: `ln σ`, `t0 / 1 cm`, then per tail `w_i` and `ln τ_i`,
@@ -557,11 +580,12 @@ mod tests {
         let raw = raw();
         let measured = counts(&model(truth(), POISSON, 0), &raw);
         let mut m = model(stanford_prior(), POISSON, 2);
-        let tried: Vec<(usize, f64, f64)> = m
+        let tried: Vec<(usize, f64, f64, f64)> = m
             .calibrate(&raw, &measured, &stanford_prior())
             .iter()
-            .map(|c| (c.response.tails.len(), c.loss, c.held_out))
+            .map(|c| (c.response.tails.len(), c.loss, c.held_out, c.held_out_z))
             .collect();
+        println!("tails, loss, held out, z: {tried:?}");
         let r = &m.response;
         assert_eq!(r.tails.len(), 1, "{tried:?} {r:?}");
         let t = truth();

@@ -44,14 +44,22 @@ impl Mesh {
 }
 
 impl Mesh {
-    /// Whether each face's mean vertex value is at least `threshold` times the largest
-    /// vertex value (every face when the mesh has no vertex values). A fitted albedo near
-    /// zero marks surface the data do not support.
+    /// Whether each face's mean vertex value is at least `threshold` times the bright
+    /// reference, the 95th percentile of the vertex values (every face when the mesh has
+    /// no vertex values). A fitted albedo near zero marks surface the data do not
+    /// support; a percentile rather than the largest value, so that a few outlier
+    /// vertices (a fit whose albedo is free in scale puts some at a rim) do not make the
+    /// rest dark.
     pub fn bright_faces(&self, threshold: f64) -> Vec<bool> {
         if self.vertex_values.len() != self.vertices.len() {
             return vec![true; self.faces.len()];
         }
-        let max = self.vertex_values.iter().cloned().fold(0.0, f64::max);
+        let mut sorted = self.vertex_values.clone();
+        sorted.sort_by(f64::total_cmp);
+        let max = sorted
+            .get(((sorted.len() as f64 - 1.0) * 0.95).round() as usize)
+            .copied()
+            .unwrap_or(0.0);
         self.faces
             .iter()
             .map(|f| {
@@ -90,5 +98,32 @@ impl Mesh {
             out.faces.push(g);
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Dark faces are judged against the 95th percentile of the vertex values: one
+    /// outlier vertex does not make the rest of the surface dark.
+    #[test]
+    fn one_outlier_vertex_does_not_darken_the_rest() {
+        // A strip of 40 vertices, 38 faces; values 0.2, one vertex 5.0, the last three 0.01.
+        let vertices: Vec<[f64; 3]> = (0..40)
+            .map(|i| [(i / 2) as f64, (i % 2) as f64, 0.0])
+            .collect();
+        let faces: Vec<[u32; 3]> = (0..38u32).map(|i| [i, i + 1, i + 2]).collect();
+        let mut values = vec![0.2; 40];
+        values[10] = 5.0;
+        values[37..].iter_mut().for_each(|v| *v = 0.01);
+        let mesh = Mesh {
+            vertices,
+            faces,
+            vertex_values: values,
+        };
+        let bright = mesh.bright_faces(0.25);
+        assert!(bright[..35].iter().all(|&b| b), "{bright:?}");
+        assert!(!bright[37], "{bright:?}");
     }
 }

@@ -117,6 +117,75 @@ fn projection_clamps_the_albedo_block_only() {
     assert_eq!(&theta[1..3 * n], &positions[1..]);
 }
 
+/// A loss blind to a common factor on the values (as a render linear in albedo compared
+/// through a fitted scale): `Σ_i (a_i / Σ_j a_j − w_i)²`.
+struct ScaleFree;
+
+impl MeshObjective for ScaleFree {
+    fn evaluate(&mut self, mesh: &Mesh) -> Result<Evaluation, String> {
+        let a = &mesh.vertex_values;
+        let total: f64 = a.iter().sum();
+        let w = |i: usize| (i + 1) as f64 / 10.0;
+        let r: Vec<f64> = a
+            .iter()
+            .enumerate()
+            .map(|(i, &a)| a / total - w(i))
+            .collect();
+        let loss = r.iter().map(|r| r * r).sum();
+        let dot: f64 = r.iter().zip(a).map(|(r, a)| r * a).sum();
+        let d_values = r
+            .iter()
+            .map(|&ri| 2.0 * ri / total - 2.0 * dot / (total * total))
+            .collect();
+        Ok(Evaluation {
+            loss,
+            d_vertices: vec![[0.0; 3]; mesh.vertices.len()],
+            d_values,
+            report: Vec::new(),
+        })
+    }
+    fn values_scale_free(&self) -> bool {
+        true
+    }
+}
+
+/// A scale-free objective's values past the top are rescaled together (ratios and the
+/// loss kept), not clamped one by one; negative values are still clamped to 0.
+#[test]
+fn projection_rescales_the_albedo_of_a_scale_free_loss() {
+    let mut mesh = common::sheet(2);
+    let n = mesh.vertices.len();
+    mesh.vertex_values = (0..n).map(|i| 0.1 + 0.2 * i as f64).collect();
+    let settings = ProblemSettings {
+        large_steps: 0.0,
+        laplacian: 0.0,
+        fit_positions: false,
+        fit_values: true,
+        value_scale: 1.0,
+        value_tv: 0.0,
+    };
+    let problem = MeshProblem::new(Box::new(ScaleFree), &mesh, settings.clone());
+    let mut theta = problem.encode(&mesh);
+    assert!(theta.iter().any(|&a| a > 1.0), "{theta:?}");
+    let before = theta.clone();
+    // The loss of the values as they are (a problem's cost would see them decoded).
+    let loss = ScaleFree.evaluate(&mesh).unwrap().loss;
+    let cost = |t: &[f64]| argmin::core::CostFunction::cost(&problem, &t.to_vec()).unwrap();
+    problem.project(&mut theta);
+    let top = before.iter().copied().fold(0.0f64, f64::max);
+    for (a, b) in theta.iter().zip(&before) {
+        assert!((a - b / top).abs() < 1e-12, "{theta:?} from {before:?}");
+    }
+    assert!((cost(&theta) - loss).abs() < 1e-12 * loss.max(1e-12));
+    // The same values under a loss that is not scale-free: clamped one by one.
+    let clamped = MeshProblem::new(Box::new(Smooth), &mesh, settings);
+    let mut theta = before.clone();
+    clamped.project(&mut theta);
+    for (a, b) in theta.iter().zip(&before) {
+        assert_eq!(*a, b.min(1.0));
+    }
+}
+
 /// [`Smooth`] seeing nothing outside a point at the origin: the problem's box is the
 /// initial mesh's own.
 struct Boxed;

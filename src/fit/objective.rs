@@ -299,6 +299,14 @@ impl UmbraObjective {
 }
 
 impl MeshObjective for UmbraObjective {
+    /// With a fitted intensity scale (or the capture model's gain) and a one-bounce model
+    /// (`tri3`, `mc3`: the render is linear in every albedo), scaling all albedos by one
+    /// factor leaves the loss unchanged. `path` carries hidden-to-hidden bounces
+    /// (quadratic in albedo): not scale-free.
+    fn values_scale_free(&self) -> bool {
+        self.intensity.scale && matches!(self.options.model, Model::Tri3 | Model::Mc3)
+    }
+
     /// The relay wall's box widened on every side by half the film's longest optical
     /// path, grown to hold the laser and the detector: a hidden point's path leaves the
     /// wall and returns to it, so its OPL is at least twice its distance from the wall,

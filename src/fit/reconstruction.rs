@@ -18,7 +18,7 @@
 //! otherwise or where the LCT cannot run (said in a warning). The two depth maps share
 //! one scale, near dark and far bright.
 
-use super::seen::{finite_max, SeenSurface, WallView};
+use super::seen::{display_max, finite_max, SeenSurface, WallView};
 use crate::error::Result;
 use crate::io::plot::{labelled_maps, MapPanel};
 use crate::recon::{
@@ -232,7 +232,7 @@ pub fn write_reconstruction_png(
     } else {
         (0.0, 1.0)
     };
-    let albedo_max = finite_max(&seen.albedo);
+    let albedo_max = display_max(&seen.albedo);
     let threshold = format!("{:.0} %", 100.0 * DEPTH_THRESHOLD);
     let titles = [
         "fitted surface: albedo of the first\nface along the wall normal\n(albedo.npy; black: no surface)".to_string(),

@@ -219,12 +219,24 @@ pub(crate) fn finite_max(values: &[f32]) -> f32 {
         .fold(0.0, f32::max)
 }
 
+/// The top of an albedo picture's colour scale: the 98th percentile of the finite values
+/// (0 if none), so that a few outlier pixels (bright vertices at a fitted surface's rim)
+/// do not darken the rest; values above it saturate.
+pub(crate) fn display_max(values: &[f32]) -> f32 {
+    let mut v: Vec<f32> = values.iter().copied().filter(|v| v.is_finite()).collect();
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f32::total_cmp);
+    v[((v.len() - 1) as f64 * 0.98).round() as usize]
+}
+
 /// Writes `albedo.png`: the albedo of [`seen_surface`] seen from the wall, on axes in
-/// metres on the wall, with a colour bar from 0 to its largest value.
+/// metres on the wall, with a colour bar from 0 to its 98th percentile ([`display_max`]).
 pub fn write_albedo_png(path: &Path, scene: &Scene, seen: &SeenSurface) -> Result<()> {
     let view = WallView::of(scene);
     let image = view.show(&seen.albedo);
-    let hi = finite_max(&seen.albedo);
+    let hi = display_max(&seen.albedo);
     let filled = seen.albedo.iter().filter(|a| a.is_finite()).count();
     labelled_maps(
         path,

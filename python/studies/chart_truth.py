@@ -446,7 +446,9 @@ def dots(img, board_level):
 
 FITS = ("fit", "fit_seed2", "fit_x100", "fit_x100_iters380", "fit_fullscan", "fit_iters380",
         # Session 4: the direct tail in (it was zero before) and a floor per scan point.
-        "fit_s4", "fit_s4_seed2", "fit_s4_x100", "fit_rescale")
+        "fit_s4", "fit_s4_seed2", "fit_s4_x100",
+        # and albedo rescaled, not clamped, at its bound.
+        "fit_s4b", "fit_s4b_seed2", "fit_s4b_x100")
 LCTS = ("lct_tb1", "lct_tb2", "lct_snr1", "lct_snr10", "lct_seed2", "lct_x100", "lct_x100_snr10", "lct_diag_clean_signal",
         "lct_diag_clean_snr10", "lct_diag_mu")
 

@@ -20,7 +20,7 @@ relative L2 kept for the final fit. The reconstructions: `umbra recon --method l
 where the papers place the objects (0.25-0.9 m; 0.25-1.15 m for s_u, whose U stands at
 1.02 m), next to the fit's albedo and depth seen
 from the wall (`umbra recon --mesh mesh_all.obj` on the same columns: every fitted face,
-dark ones too, since albedo is what shows a chart's bars).
+dark ones too, since albedo is what shows a chart's bars; colour up to its 98th percentile).
 """
 from __future__ import annotations
 
@@ -150,7 +150,9 @@ def picture(path, capture, lct_dir, fk_vol, fits):
     for i, (model, seen, l2) in enumerate(fits):
         a = np.load(os.path.join(seen, "albedo.npy"))[::-1, ::-1]
         d = np.load(os.path.join(seen, "depth.npy"))[::-1, ::-1]
-        top = np.nanmax(a) if np.isfinite(a).any() else 1.0
+        # The colour scale's top at the 98th percentile, as the fit's own albedo.png: a few
+        # bright vertices at a fitted board's rim would darken the rest.
+        top = float(np.nanpercentile(a, 98)) if np.isfinite(a).any() else 1.0
         ax_a, ax_d = axes[len(panels) + 2 * i], axes[len(panels) + 2 * i + 1]
         ax_a.imshow(np.nan_to_num(a, nan=0.0), cmap="magma", vmin=0.0, vmax=top)
         ax_a.set_title(f"fit albedo, {model}\nrelative L2 {l2:.3f}", fontsize=8)

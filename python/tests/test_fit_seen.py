@@ -41,3 +41,26 @@ def test_fit_returns_the_albedo_and_depth_seen_from_the_wall(tmp_path: Path):
     assert {"albedo.npy", "depth.npy", "albedo.png", "reconstruction.png"} <= names
     # No capture model (background "none"): no floor per scan point.
     assert out["floor"] is None and "floor.npy" not in names
+
+
+def test_fit_returns_the_capture_models_floor_per_scan_point(tmp_path: Path):
+    # Poisson counts of the two quads with a floor that jumps between scan columns (as the
+    # Stanford captures' does): the capture model (background "per-point") fits one floor
+    # per scan point, returned as ``floor`` (ny, nx) and written as floor.npy.
+    s = two_object_scene(tmp_path, scan=8)
+    h = np.asarray(umbra.render(s))
+    ny, nx, _ = h.shape
+    truth = np.tile([0.5, 2.0, 0.8, 1.4], nx // 4)[None, :].repeat(ny, 0)
+    counts = np.random.default_rng(3).poisson(h / h.max() * 200 + truth[..., None])
+    out = umbra.fit(s, counts.astype(np.float32), output=tmp_path / "fit", init="scene",
+                    background="per-point", iters=4)
+    floor = out["floor"]
+    assert isinstance(floor, np.ndarray) and floor.shape == (ny, nx)
+    # ~150 bins of 0.5-2 counts a point: each floor within a few tenths, each column's
+    # mean over its 8 points within 0.15.
+    assert np.abs(floor - truth).max() < 0.5, np.round(floor, 2)
+    assert np.abs(floor.mean(axis=0) - truth[0]).max() < 0.15, np.round(floor.mean(axis=0), 2)
+    f = np.load(tmp_path / "fit" / "floor.npy")
+    assert f.dtype == np.float32 and f.shape == (ny, nx)
+    np.testing.assert_allclose(f, floor, rtol=1e-6)
+    assert abs(out["nuisance"]["floor_mean"] - floor.mean()) < 1e-9 * floor.mean()

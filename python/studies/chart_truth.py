@@ -103,7 +103,8 @@ def read_toml(path):
 # ---------------------------------------------------------------- scene
 
 def _rgb(v):
-    return {"type": "rgb", "value": [v, v, v]}
+    import mtutil
+    return mtutil.rgb(v)
 
 
 def _rect(x0, x1, y0, y1, z, albedo):
@@ -121,32 +122,18 @@ def _rect(x0, x1, y0, y1, z, albedo):
 def scene_dict(hidden=True, spp=1024):
     import mtutil
     laser = [float(x) for x in LASER]
-    scene = {
-        "type": "scene",
-        "integrator": {
-            "type": "transient_nlos_path", "capture_type": "confocal",
-            "max_depth": 6, "filter_bounces": -1, "discard_direct_paths": False,
-            "nlos_laser_sampling": True, "nlos_hidden_geometry_sampling": False,
-            "nlos_hidden_geometry_sampling_do_rroulette": False,
-            "nlos_hidden_geometry_sampling_includes_relay_wall": False,
-            "account_first_and_last_bounces": False, "temporal_filter": "box"},
-        "laser": {"type": "projector", "irradiance": _rgb(1.0), "fov": 0.2,
-                  "to_world": mtutil.lookat(laser, [0.0, 0.0, 0.0])},
-    }
+    # Hidden-geometry sampling off: mitransient 1.3.1's is biased where one hidden shape
+    # occludes another (issue 48).
+    scene = {"type": "scene", "integrator": mtutil.nlos_integrator("confocal", False),
+             "laser": mtutil.projector(laser, [0.0, 0.0, 0.0])}
     if hidden:
         h = BOARD_HALF
         scene["board"] = _rect(-h, h, -h, h, BOARD_Z, BOARD_ALBEDO)
         for g, rects in GROUPS.items():
             for k, r in enumerate(rects):
                 scene[f"{g}_{k}"] = _rect(*r, BAR_Z, BAR_ALBEDO)
-    scene["relay_wall"] = {
-        "type": "rectangle", "to_world": np.diag([WALL_HALF, WALL_HALF, 1.0, 1.0]),
-        "bsdf": {"type": "diffuse", "reflectance": _rgb(WALL_ALBEDO)},
-        "sensor": {"type": "nlos_capture_meter", "sensor_origin": laser,
-                   "sampler": {"type": "independent", "sample_count": int(spp), "seed": 0},
-                   "film": {"type": "transient_hdr_film", "width": SCAN, "height": SCAN,
-                            "temporal_bins": BINS, "bin_width_opl": BIN_WIDTH,
-                            "start_opl": START_OPL, "rfilter": {"type": "box"}}}}
+    scene["relay_wall"] = mtutil.relay_wall(WALL_HALF, WALL_ALBEDO, laser, SCAN, BINS, BIN_WIDTH,
+                                            START_OPL, spp)
     return scene
 
 

@@ -42,8 +42,7 @@ UMBRA = os.environ.get("UMBRA_BIN", os.path.join(ROOT, "target", "release", "umb
 MESH = os.path.join(ROOT, "scenes", "meshes", "letter_t.obj")
 
 
-def _rgb(v):
-    return {"type": "rgb", "value": [v, v, v]}
+_rgb = mtutil.rgb
 
 
 def write_scene(dest, scan=32, bins=512, bin_width=0.004, start_opl=1.6, spp=1024,
@@ -56,25 +55,12 @@ def write_scene(dest, scan=32, bins=512, bin_width=0.004, start_opl=1.6, spp=102
     laser = [float(x) for x in laser]
     scene = {
         "type": "scene",
-        "integrator": {
-            "type": "transient_nlos_path", "capture_type": "confocal",
-            "max_depth": 6, "filter_bounces": -1, "discard_direct_paths": False,
-            "nlos_laser_sampling": True, "nlos_hidden_geometry_sampling": True,
-            "nlos_hidden_geometry_sampling_do_rroulette": False,
-            "nlos_hidden_geometry_sampling_includes_relay_wall": False,
-            "account_first_and_last_bounces": False, "temporal_filter": "box"},
-        "laser": {"type": "projector", "irradiance": _rgb(1.0), "fov": 0.2,
-                  "to_world": mtutil.lookat(laser, [0.0, 0.0, 0.0])},
+        "integrator": mtutil.nlos_integrator("confocal", True),
+        "laser": mtutil.projector(laser, [0.0, 0.0, 0.0]),
         "letter_t": {"type": "obj", "filename": "letter_t.obj", "face_normals": True,
                      "to_world": letter, "bsdf": {"type": "diffuse", "reflectance": _rgb(0.9)}},
-        "relay_wall": {   # the scan covers the whole rectangle: 1.6 m x 1.6 m
-            "type": "rectangle", "to_world": np.diag([0.8, 0.8, 1.0, 1.0]),
-            "bsdf": {"type": "diffuse", "reflectance": _rgb(0.8)},
-            "sensor": {"type": "nlos_capture_meter", "sensor_origin": laser,
-                       "sampler": {"type": "independent", "sample_count": spp, "seed": 0},
-                       "film": {"type": "transient_hdr_film", "width": scan, "height": scan,
-                                "temporal_bins": bins, "bin_width_opl": bin_width,
-                                "start_opl": start_opl, "rfilter": {"type": "box"}}}},
+        # The scan covers the whole rectangle: 1.6 m x 1.6 m.
+        "relay_wall": mtutil.relay_wall(0.8, 0.8, laser, scan, bins, bin_width, start_opl, spp),
     }
     import umbra
     os.makedirs(dest, exist_ok=True)

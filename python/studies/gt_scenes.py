@@ -237,8 +237,7 @@ def opl_windows(name, capture, scan, points=8000, seed=0):
     return np.array(out)
 
 
-def _rgb(v):
-    return {"type": "rgb", "value": [v, v, v]}
+_rgb = mtutil.rgb
 
 
 def scene_dict(name, capture, scan=SCAN, bins=BINS, bin_width=BIN_WIDTH, start_opl=START_OPL,
@@ -250,32 +249,14 @@ def scene_dict(name, capture, scan=SCAN, bins=BINS, bin_width=BIN_WIDTH, start_o
         raise ValueError(f"capture {capture!r}: one of {CAPTURES}")
     laser = [float(x) for x in LASER]
     target = [0.0, 0.0, 0.0] if capture == "confocal" else [float(x) for x in LASER_SPOT]
-    scene = {
-        "type": "scene",
-        "integrator": {
-            "type": "transient_nlos_path", "capture_type": capture,
-            "max_depth": 6, "filter_bounces": -1, "discard_direct_paths": False,
-            "nlos_laser_sampling": True, "nlos_hidden_geometry_sampling": hgs,
-            "nlos_hidden_geometry_sampling_do_rroulette": False,
-            "nlos_hidden_geometry_sampling_includes_relay_wall": False,
-            "account_first_and_last_bounces": False, "temporal_filter": "box"},
-        # single: x_l is where the projector's +z axis meets the wall (the lookat target);
-        # confocal: only its position matters.
-        "laser": {"type": "projector", "irradiance": _rgb(1.0), "fov": 0.2,
-                  "to_world": mtutil.lookat(laser, target)},
-    }
+    scene = {"type": "scene", "integrator": mtutil.nlos_integrator(capture, hgs),
+             "laser": mtutil.projector(laser, target)}
     for o in SCENES[name]:
         scene[o["id"]] = {"type": "obj", "filename": o["mesh"], "face_normals": True,
                           "to_world": to_world(o),
                           "bsdf": {"type": "diffuse", "reflectance": _rgb(ALBEDO)}}
-    scene["relay_wall"] = {
-        "type": "rectangle", "to_world": np.diag([WALL_HALF, WALL_HALF, 1.0, 1.0]),
-        "bsdf": {"type": "diffuse", "reflectance": _rgb(WALL_ALBEDO)},
-        "sensor": {"type": "nlos_capture_meter", "sensor_origin": laser,
-                   "sampler": {"type": "independent", "sample_count": int(spp), "seed": 0},
-                   "film": {"type": "transient_hdr_film", "width": scan, "height": scan,
-                            "temporal_bins": bins, "bin_width_opl": bin_width,
-                            "start_opl": start_opl, "rfilter": {"type": "box"}}}}
+    scene["relay_wall"] = mtutil.relay_wall(WALL_HALF, WALL_ALBEDO, laser, scan, bins, bin_width,
+                                            start_opl, spp)
     return scene
 
 

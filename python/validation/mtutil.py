@@ -27,6 +27,48 @@ def lookat(origin, target, up=(0.0, 1.0, 0.0)):
     return m
 
 
+
+def rgb(v):
+    """A Mitsuba `rgb` spectrum of grey `v`."""
+    return {"type": "rgb", "value": [v, v, v]}
+
+
+def nlos_integrator(capture="confocal", hidden_geometry_sampling=True):
+    """mitransient's `transient_nlos_path` as the studies run it: up to 6 bounces, laser
+    sampling, hidden-geometry sampling as asked (without the relay wall or its roulette),
+    rectified (`account_first_and_last_bounces` off), box temporal filter."""
+    return {
+        "type": "transient_nlos_path", "capture_type": capture,
+        "max_depth": 6, "filter_bounces": -1, "discard_direct_paths": False,
+        "nlos_laser_sampling": True, "nlos_hidden_geometry_sampling": bool(hidden_geometry_sampling),
+        "nlos_hidden_geometry_sampling_do_rroulette": False,
+        "nlos_hidden_geometry_sampling_includes_relay_wall": False,
+        "account_first_and_last_bounces": False, "temporal_filter": "box"}
+
+
+def projector(laser, target):
+    """The laser: a unit-irradiance `projector` of 0.2 degrees at `laser` aimed at `target`
+    (single capture: where its +z axis meets the wall is the laser spot; confocal: only its
+    position matters)."""
+    return {"type": "projector", "irradiance": rgb(1.0), "fov": 0.2,
+            "to_world": lookat(laser, target)}
+
+
+def relay_wall(half, albedo, laser, scan, bins, bin_width, start_opl, spp):
+    """The relay wall: a `2 half` square at z = 0 facing +z, diffuse of `albedo`, carrying
+    an `nlos_capture_meter` at `laser` with a `scan x scan` box-filtered transient film of
+    `bins` bins of `bin_width` (OPL, m) from `start_opl`, `spp` independent samples."""
+    import numpy as np
+
+    return {
+        "type": "rectangle", "to_world": np.diag([half, half, 1.0, 1.0]),
+        "bsdf": {"type": "diffuse", "reflectance": rgb(albedo)},
+        "sensor": {"type": "nlos_capture_meter", "sensor_origin": laser,
+                   "sampler": {"type": "independent", "sample_count": int(spp), "seed": 0},
+                   "film": {"type": "transient_hdr_film", "width": scan, "height": scan,
+                            "temporal_bins": bins, "bin_width_opl": bin_width,
+                            "start_opl": start_opl, "rfilter": {"type": "box"}}}}
+
 def find_libllvm() -> str:
     """Path of an LLVM >= 19 shared library for Dr.Jit (LLVM 14 is too old, 15/16 crash)."""
     env = os.environ.get("DRJIT_LIBLLVM_PATH")

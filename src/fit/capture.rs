@@ -379,10 +379,8 @@ fn paired_z(a: &[f64], b: &[f64]) -> f64 {
     }
     let d: Vec<f64> = a.iter().zip(b).map(|(a, b)| a - b).collect();
     let mean = d.iter().sum::<f64>() / n as f64;
-    let var = match n {
-        1 => 0.0,
-        _ => d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64,
-    };
+    // One point: no spread (its deviation from its own mean is 0).
+    let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n.max(2) - 1) as f64;
     let se = (var / n as f64).sqrt();
     if se > 0.0 {
         mean / se
@@ -585,7 +583,6 @@ mod tests {
             .iter()
             .map(|c| (c.response.tails.len(), c.loss, c.held_out, c.held_out_z))
             .collect();
-        println!("tails, loss, held out, z: {tried:?}");
         let r = &m.response;
         assert_eq!(r.tails.len(), 1, "{tried:?} {r:?}");
         let t = truth();

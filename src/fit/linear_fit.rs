@@ -74,7 +74,8 @@ pub struct Window<'a> {
 }
 
 impl Window<'_> {
-    fn uses(&self, p: usize) -> bool {
+    /// Whether point `p` is in the fit.
+    pub(super) fn uses(&self, p: usize) -> bool {
         self.in_fit.get(p).copied().unwrap_or(true)
     }
 
@@ -156,13 +157,21 @@ fn sums<D: Design>(
         c += pc;
     }
     // The lower triangle was summed; mirror it.
+    (symmetric(g, n), r, c)
+}
+
+/// Mirrors the lower triangle of the leading `n x n` block into its upper one.
+pub(super) fn symmetric(
+    mut g: [[f64; MAX_COLS]; MAX_COLS],
+    n: usize,
+) -> [[f64; MAX_COLS]; MAX_COLS] {
     for i in 1..n {
         let (upper, lower) = g.split_at_mut(i);
         for (j, row) in upper.iter_mut().enumerate() {
             row[i] = lower[0][j];
         }
     }
-    (g, r, c)
+    g
 }
 
 /// The least-squares coefficients and the relative L2 loss.
@@ -492,11 +501,7 @@ pub(super) fn constrained(
 /// after scaling `G` to unit diagonal (the columns' scales differ by orders of magnitude:
 /// a render in counts against a tail in counts per direct count); `None` if singular (an
 /// empty `free` gives an empty solution).
-pub(super) fn solve(
-    g: &[[f64; MAX_COLS]; MAX_COLS],
-    r: &[f64; MAX_COLS],
-    free: &[usize],
-) -> Option<Vec<f64>> {
+fn solve(g: &[[f64; MAX_COLS]; MAX_COLS], r: &[f64; MAX_COLS], free: &[usize]) -> Option<Vec<f64>> {
     let k = free.len();
     let d: Vec<f64> = free
         .iter()

@@ -28,8 +28,8 @@
 //! independent).
 
 use super::linear_fit::{
-    constrained, deviance_term, per_point, projected_newton, Design, Likelihood, LinearFit, Window,
-    MAX_COLS,
+    constrained, deviance_term, per_point, projected_newton, symmetric, Design, Likelihood,
+    LinearFit, Window, MAX_COLS,
 };
 
 type Matrix = [[f64; MAX_COLS]; MAX_COLS];
@@ -91,21 +91,6 @@ fn moments<D: Design>(d: &D, p: usize, h: &[f32], m: &[f32], win: &Window) -> Mo
     mo
 }
 
-fn uses(win: &Window, p: usize) -> bool {
-    win.in_fit.get(p).copied().unwrap_or(true)
-}
-
-/// Mirrors a lower triangle into the upper one.
-#[allow(clippy::needless_range_loop)] // index pairs of a symmetric matrix
-fn symmetric(mut g: Matrix, n: usize) -> Matrix {
-    for i in 0..n {
-        for j in 0..i {
-            g[j][i] = g[i][j];
-        }
-    }
-    g
-}
-
 #[allow(clippy::needless_range_loop)] // index pairs of a symmetric matrix
 fn fit_l2<D: Design>(d: &D, render: &[f32], measured: &[f32], win: &Window) -> LinearFit {
     let cols = d.columns();
@@ -115,7 +100,7 @@ fn fit_l2<D: Design>(d: &D, render: &[f32], measured: &[f32], win: &Window) -> L
     let (mut g, mut r) = ([[0.0; MAX_COLS]; MAX_COLS], [0.0; MAX_COLS]);
     let (mut centred, mut total) = (0.0, 0.0);
     for (p, mo) in sums.iter().enumerate() {
-        if !uses(win, p) || mo.n == 0.0 {
+        if !win.uses(p) || mo.n == 0.0 {
             continue;
         }
         for i in 0..cols {
@@ -142,37 +127,34 @@ fn fit_l2<D: Design>(d: &D, render: &[f32], measured: &[f32], win: &Window) -> L
     }
 }
 
-/// `x · β` over a point's fitted bins, and its measured counts there.
-fn point_rows<D: Design>(
-    d: &D,
-    beta: &[f64; MAX_COLS],
+/// `(x · β, m)` over a point's fitted bins.
+fn rows<'a, D: Design>(
+    d: &'a D,
+    beta: &'a [f64; MAX_COLS],
     p: usize,
-    h: &[f32],
-    m: &[f32],
+    h: &'a [f32],
+    m: &'a [f32],
     win: &Window,
-) -> (Vec<f64>, Vec<f64>) {
+) -> impl Iterator<Item = (f64, f64)> + 'a {
     let mut x = [0.0; MAX_COLS];
-    (win.first..win.bins)
-        .map(|t| {
-            d.row(p, t, f64::from(h[t]), &mut x);
-            let a: f64 = x[..d.columns()].iter().zip(beta).map(|(x, b)| x * b).sum();
-            (a, f64::from(m[t]))
-        })
-        .unzip()
+    (win.first..win.bins).map(move |t| {
+        d.row(p, t, f64::from(h[t]), &mut x);
+        let a: f64 = x[..d.columns()].iter().zip(beta).map(|(x, b)| x * b).sum();
+        (a, f64::from(m[t]))
+    })
 }
 
-/// The floor's lower bound for a point whose `x · β` is `a`: non-negative and keeping
-/// every mean positive.
-fn floor_bound(a: &[f64], m: &[f64]) -> f64 {
-    let low = a.iter().copied().fold(f64::INFINITY, f64::min);
-    let scale = 1.0 + m.iter().sum::<f64>() / m.len().max(1) as f64;
-    (1e-6 * scale - low).max(0.0)
+/// The floor's lower bound for a point whose lowest `x · β` is `low` and whose mean count
+/// is `mean`: non-negative and keeping every mean positive.
+fn floor_bound(low: f64, mean: f64) -> f64 {
+    (1e-6 * (1.0 + mean) - low).max(0.0)
 }
 
 /// The Poisson-optimal floor of one point for `x · β = a` (module doc), from `start`.
 fn profile(a: &[f64], m: &[f64], start: f64) -> f64 {
-    let lo = floor_bound(a, m);
+    let low = a.iter().copied().fold(f64::INFINITY, f64::min);
     let (n, sm) = (m.len() as f64, m.iter().sum::<f64>());
+    let lo = floor_bound(low, sm / n.max(1.0));
     // g(f) = Σ (1 − m/(a + f)) is increasing in f; g(lo) ≥ 0 puts the optimum at lo.
     let g = |f: f64| -> (f64, f64) {
         a.iter().zip(m).fold((0.0, 0.0), |(g, h), (&a, &m)| {
@@ -185,7 +167,6 @@ fn profile(a: &[f64], m: &[f64], start: f64) -> f64 {
         return lo;
     }
     // At f with min a + f ≥ Σm / n, Σ m/(a + f) ≤ n: g ≥ 0.
-    let low = a.iter().copied().fold(f64::INFINITY, f64::min);
     let (mut lo, mut hi) = (lo, (sm / n - low).max(lo) * (1.0 + 1e-12) + 1e-12);
     let mut f = start.clamp(lo, hi);
     for _ in 0..100 {
@@ -221,7 +202,7 @@ fn profile_all<D: Design>(
     start: &[f64],
 ) -> Vec<f64> {
     per_point(render, measured, win.bins, |p, h, m| {
-        let (a, m) = point_rows(d, beta, p, h, m, win);
+        let (a, m): (Vec<f64>, Vec<f64>) = rows(d, beta, p, h, m, win).unzip();
         profile(&a, &m, start.get(p).copied().unwrap_or(0.0))
     })
 }
@@ -236,13 +217,11 @@ fn deviance<D: Design>(
     floors: &[f64],
 ) -> f64 {
     let terms: Vec<f64> = per_point(render, measured, win.bins, |p, h, m| {
-        if !uses(win, p) {
+        if !win.uses(p) {
             return 0.0;
         }
-        let (a, m) = point_rows(d, beta, p, h, m, win);
-        a.iter()
-            .zip(&m)
-            .map(|(&a, &m)| deviance_term(m, a + floors[p]))
+        rows(d, beta, p, h, m, win)
+            .map(|(a, m)| deviance_term(m, a + floors[p]))
             .sum()
     });
     terms.iter().sum()
@@ -260,17 +239,18 @@ fn newton_terms<D: Design>(
     let cols = d.columns();
     let terms: Vec<([f64; MAX_COLS], Matrix)> = per_point(render, measured, win.bins, |p, h, m| {
         let (mut grad, mut hess) = ([0.0; MAX_COLS], [[0.0; MAX_COLS]; MAX_COLS]);
-        if !uses(win, p) {
+        if !win.uses(p) {
             return (grad, hess);
         }
         let (mut hf, mut hff, mut gf) = ([0.0; MAX_COLS], 0.0, 0.0);
+        let (mut low, mut sum_m) = (f64::INFINITY, 0.0);
         let mut x = [0.0; MAX_COLS];
-        let mut a = Vec::with_capacity(win.bins);
         for t in win.first..win.bins {
             let m = f64::from(m[t]);
             d.row(p, t, f64::from(h[t]), &mut x);
-            let mu = x[..cols].iter().zip(beta).map(|(x, b)| x * b).sum::<f64>() + floors[p];
-            a.push(mu - floors[p]);
+            let a = x[..cols].iter().zip(beta).map(|(x, b)| x * b).sum::<f64>();
+            let mu = a + floors[p];
+            (low, sum_m) = (low.min(a), sum_m + m);
             let (w, r) = (m / (mu * mu), 1.0 - m / mu);
             gf += r;
             hff += w;
@@ -282,8 +262,8 @@ fn newton_terms<D: Design>(
                 }
             }
         }
-        let ms: Vec<f64> = (win.first..win.bins).map(|t| f64::from(m[t])).collect();
-        let at_bound = floors[p] <= floor_bound(&a, &ms) && gf > 0.0;
+        let mean = sum_m / (win.bins - win.first).max(1) as f64;
+        let at_bound = floors[p] <= floor_bound(low, mean) && gf > 0.0;
         if hff > 0.0 && !at_bound {
             for i in 0..cols {
                 grad[i] -= hf[i] * gf / hff;
